@@ -1,0 +1,99 @@
+"""Typed configuration: pydantic models with YAML load/dump and ``key.sub=value`` CLI overrides.
+
+Every module defines its own model (``SimConfig``, ``SlamConfig``, ...) deriving from
+:class:`ConfigModel`; commands load them with :func:`load_config` and write the resolved
+config next to their results with :func:`dump_config`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence, TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from seedmap.errors import ConfigError
+
+T = TypeVar("T", bound="ConfigModel")
+
+
+class ConfigModel(BaseModel):
+    """Base for all seedmap configs: unknown keys are errors, assignments are validated."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+def _set_dotted(data: dict, key: str, value: Any) -> None:
+    parts = key.split(".")
+    node = data
+    for p in parts[:-1]:
+        nxt = node.get(p)
+        if nxt is None:
+            nxt = node[p] = {}
+        if not isinstance(nxt, dict):
+            raise ConfigError(f"override {key!r}: {p!r} is not a section")
+        node = nxt
+    node[parts[-1]] = value
+
+
+def apply_overrides(data: dict, overrides: Sequence[str]) -> dict:
+    """Apply ``section.key=value`` strings (values parsed as YAML scalars/lists) to a dict."""
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"override {item!r} is not of the form key=value")
+        key, raw = item.split("=", 1)
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else raw
+        except yaml.YAMLError:
+            value = raw
+        _set_dotted(data, key.strip(), value)
+    return data
+
+
+def _deep_merge(base: dict, extra: dict) -> dict:
+    out = dict(base)
+    for k, v in extra.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _deep_merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def load_config(
+    cls: type[T],
+    path: str | Path | None = None,
+    overrides: Sequence[str] = (),
+    base: dict | None = None,
+) -> T:
+    """Build ``cls`` from defaults <- ``base`` <- YAML file <- CLI overrides (later wins)."""
+    data: dict = dict(base or {})
+    if path is not None:
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError("config file not found", p)
+        try:
+            loaded = yaml.safe_load(p.read_text()) or {}
+        except yaml.YAMLError as e:
+            raise ConfigError(f"not valid YAML ({str(e).splitlines()[0]})", p) from None
+        if not isinstance(loaded, dict):
+            raise ConfigError("config must be a YAML mapping", p)
+        data = _deep_merge(data, loaded)
+    data = apply_overrides(data, overrides)
+    try:
+        return cls.model_validate(data)
+    except ValidationError as e:
+        err = e.errors()[0]
+        where = ".".join(str(x) for x in err["loc"])
+        raise ConfigError(f"invalid config value {where!r}: {err['msg']}", path) from None
+
+
+def config_to_yaml(cfg: BaseModel) -> str:
+    return yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
+
+
+def dump_config(cfg: BaseModel, path: str | Path) -> None:
+    from seedmap.io.atomic import atomic_write_text
+
+    atomic_write_text(Path(path), config_to_yaml(cfg))
