@@ -1,0 +1,42 @@
+"""Seed detection front-end: one :class:`Detector` interface, several detectors by name.
+
+* ``gt`` — ORACLE reading a simulated dataset's ground-truth masks (:class:`GtDetector`).
+* ``fast`` — classical OpenCV detector, real-time on CPU (:mod:`seedmap.detect.fast`).
+* ``frcnn-pix2pix`` — the paper's Faster R-CNN (VGG16) + pix2pix pipeline; needs the optional
+  ``seedmap[learned]`` extra (torch), imported only when asked for.
+
+Use :func:`make_detector` and :meth:`Detector.detect_stereo`. Importing this package never imports
+torch.
+"""
+
+from seedmap.detect.base import (
+    Detector,
+    available_detectors,
+    default_detector_name,
+    detector_help,
+    make_detector,
+    register_detector,
+)
+from seedmap.detect.config import DetectConfig
+from seedmap.detect.ellipse import draw_ellipses, fit_ellipse_mask, fit_ellipses_labels
+from seedmap.detect.gt import GtDetector
+
+__all__ = [
+    "DetectConfig",
+    "Detector",
+    "GtDetector",
+    "available_detectors",
+    "default_detector_name",
+    "detect_stereo",
+    "detector_help",
+    "draw_ellipses",
+    "fit_ellipse_mask",
+    "fit_ellipses_labels",
+    "make_detector",
+    "register_detector",
+]
+
+
+def detect_stereo(detector: Detector, frame):  # noqa: ANN001, ANN201 - thin alias
+    """``detector.detect_stereo(frame)`` -> :class:`~seedmap.records.StereoDetections`."""
+    return detector.detect_stereo(frame)

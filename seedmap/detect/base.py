@@ -1,0 +1,108 @@
+"""The detector interface and the registry every stage uses to get one by name.
+
+A detector turns one RGB ``uint8`` image into :class:`~seedmap.records.Detections` (boxes, scores,
+ellipses, keypoints = ellipse centres) and a stereo frame into
+:class:`~seedmap.records.StereoDetections` via :meth:`Detector.detect_stereo`. Downstream code
+(association, SLAM, reconstruction) only ever calls these two methods, so the oracle, the fast
+classical detector and the learned Faster R-CNN + pix2pix pipeline are interchangeable.
+
+The ``gt`` oracle reads ground truth instead of pixels, so it needs the dataset and the frame
+index; it implements :meth:`detect_stereo` from ``frame.index`` and :meth:`GtDetector.detect_frame`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from seedmap.errors import InputError, SeedmapError
+from seedmap.records import Detections, StereoDetections, StereoFrame
+
+
+def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
+    """Refuse anything that is not an ``H x W x 3`` ``uint8`` RGB array (one-line error)."""
+    a = np.asarray(image)
+    if a.dtype != np.uint8:
+        raise InputError(f"{what} is {a.dtype}; detectors expect 8-bit RGB (uint8)")
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise InputError(f"{what} has shape {a.shape}; detectors expect H x W x 3 RGB")
+    if a.size == 0:
+        raise InputError(f"{what} is empty")
+    return a
+
+
+class Detector:
+    """Base class: subclasses implement :meth:`detect`; stereo is two monocular calls by default."""
+
+    name: str = "base"
+    #: True for detectors that read ground truth instead of pixels (never for real data).
+    is_oracle: bool = False
+
+    def detect(self, image: np.ndarray) -> Detections:  # pragma: no cover - interface
+        raise SeedmapError(f"detector {self.name!r} does not detect on plain images")
+
+    def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
+        """Detections in the left and right images of one rectified stereo frame."""
+        return StereoDetections(index=frame.index, timestamp=frame.timestamp,
+                                left=self.detect(frame.left), right=self.detect(frame.right))
+
+    def __call__(self, image: np.ndarray) -> Detections:
+        return self.detect(image)
+
+
+# name -> factory(**kwargs) -> Detector ; factories import their heavy modules lazily
+_REGISTRY: dict[str, Callable[..., Detector]] = {}
+_HELP: dict[str, str] = {}
+
+
+def register_detector(name: str, factory: Callable[..., Detector], help: str = "") -> None:
+    _REGISTRY[name] = factory
+    _HELP[name] = help
+
+
+def available_detectors() -> list[str]:
+    """Registered detector names (``gt`` is the ground-truth oracle)."""
+    return list(_REGISTRY)
+
+
+def detector_help() -> dict[str, str]:
+    return dict(_HELP)
+
+
+def default_weights_path() -> Path:
+    """Where shipped weights of the learned pipeline would live inside the package."""
+    return Path(__file__).with_name("weights") / "frcnn_pix2pix.safetensors"
+
+
+def default_detector_name() -> str:
+    """``frcnn-pix2pix`` when torch and shipped trained weights are present, else ``fast``."""
+    if default_weights_path().is_file():
+        try:
+            import torch  # noqa: F401
+            import torchvision  # noqa: F401
+        except ImportError:
+            return "fast"
+        return "frcnn-pix2pix"
+    return "fast"
+
+
+def make_detector(name: str, *, dataset: str | Path | object | None = None, weights: str | Path | None = None,
+                  config: object | None = None, overrides: tuple[str, ...] | list[str] = ()) -> Detector:
+    """Build a detector by name.
+
+    ``dataset`` (path or an opened :class:`~seedmap.io.seedmap_dataset.SeedmapDataset`) is needed by
+    the ``gt`` oracle only; ``weights`` by the learned detector (defaults to shipped weights);
+    ``config`` is a :class:`~seedmap.detect.config.DetectConfig` (defaults otherwise) and
+    ``overrides`` are ``key=value`` strings applied on top of it. ``"default"`` picks
+    :func:`default_detector_name`.
+    """
+    from seedmap.detect.config import DetectConfig, resolve_config
+
+    if name in ("default", "auto"):
+        name = default_detector_name()
+    if name not in _REGISTRY:
+        raise SeedmapError(f"unknown detector {name!r} (known: {', '.join(available_detectors())})")
+    cfg = resolve_config(config if isinstance(config, DetectConfig) else None, overrides)
+    return _REGISTRY[name](dataset=dataset, weights=weights, config=cfg)

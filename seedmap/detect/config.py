@@ -1,0 +1,78 @@
+"""Detector configuration (one pydantic model, sections per detector)."""
+
+from __future__ import annotations
+
+from typing import Literal, Sequence
+
+from seedmap.config import ConfigModel, apply_overrides
+
+
+class GtConfig(ConfigModel):
+    """The ground-truth oracle: ellipse per GT instance mask."""
+
+    #: ``moments`` = mask centroid + second moments (vectorised, least-biased centre for tiny masks);
+    #: ``contour`` = cv2.fitEllipse on the mask contour (the paper's fitter).
+    ellipse: Literal["moments", "contour"] = "moments"
+    #: drop instances with fewer visible pixels (a sliver of an occluded seed is no keypoint)
+    min_area_px: int = 3
+    #: keep only instances whose true 3D centre is visible (center_visible = 1)
+    only_center_visible: bool = False
+
+
+class FastConfig(ConfigModel):
+    """The classical detector: brightness blob response + local maxima + marker watershed.
+
+    Pixel sizes refer to the seed diameter ``seed_px`` at the working resolution; all filters
+    scale with it so the same config works at other image scales.
+    """
+
+    #: expected seed diameter (px) at the input resolution; the scale of every filter
+    seed_px: float = 6.0
+    #: run on the image resized by this factor (< 1 is faster, keypoints are mapped back)
+    work_scale: float = 1.0
+    #: minimum blob (DoG) response, in grey levels
+    min_response: float = 6.0
+    #: pixels darker than this (grey level) are background (flash imaging: dark far field)
+    min_brightness: float = 40.0
+    #: a region pixel must be at least this fraction of its peak's brightness above background
+    region_rel: float = 0.5
+    #: minimum chroma-weighted "seediness": reject green leaf pixels (g much larger than r)
+    max_green_excess: float = 25.0
+    #: minimum region area in px at the input resolution
+    min_area_px: int = 4
+    #: minimum separation of two peaks as a fraction of seed_px
+    peak_sep: float = 0.6
+    ellipse: Literal["moments", "contour"] = "moments"
+
+
+class LearnedConfig(ConfigModel):
+    """Faster R-CNN (VGG16) + pix2pix; see seedmap.detect.learned."""
+
+    #: the detector runs on the image upscaled by this factor (seeds are 4-8 px at 1434x1050)
+    upscale: float = 2.0
+    score_threshold: float = 0.5
+    nms_iou: float = 0.3
+    max_detections: int = 3000
+    #: crop padding around a box, as a fraction of the box size
+    crop_pad: float = 0.5
+    crop_size: int = 32
+    #: use onnxruntime for the segmenter when an exported .onnx sits next to the weights
+    use_onnx: bool = True
+    ellipse: Literal["moments", "contour"] = "contour"
+
+
+class DetectConfig(ConfigModel):
+    seed: int = 0
+    gt: GtConfig = GtConfig()
+    fast: FastConfig = FastConfig()
+    learned: LearnedConfig = LearnedConfig()
+
+
+def resolve_config(cfg: DetectConfig | None, overrides: Sequence[str] = ()) -> DetectConfig:
+    """``cfg`` (or defaults) with ``key=value`` overrides applied and validated."""
+    from seedmap.config import load_config
+
+    base = (cfg or DetectConfig()).model_dump()
+    if not overrides:
+        return DetectConfig.model_validate(base)
+    return load_config(DetectConfig, None, overrides, base=apply_overrides(base, []))
