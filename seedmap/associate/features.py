@@ -138,6 +138,27 @@ def _one_to_one(qi: np.ndarray, ti: np.ndarray, dist: np.ndarray) -> np.ndarray:
     return np.sort(keep)
 
 
+def _resolve_cfg(cfg: Any) -> FeatureMatcherConfig:
+    """Accept ``None``, a :class:`FeatureMatcherConfig`, a dict, or a pipeline config object.
+
+    A pipeline config (e.g. ``SlamConfig``) shares its ``gates`` with every matcher, so the
+    baselines are gated exactly like the seed matcher; its ``features`` section, when it has one,
+    holds the baseline parameters.
+    """
+    if cfg is None:
+        return FeatureMatcherConfig()
+    if isinstance(cfg, FeatureMatcherConfig):
+        return cfg
+    if isinstance(cfg, dict):
+        return FeatureMatcherConfig.model_validate(cfg)
+    feats = getattr(cfg, "features", None)
+    out = _resolve_cfg(feats) if feats is not None else FeatureMatcherConfig()
+    gates = getattr(cfg, "gates", None)
+    if isinstance(gates, GateConfig):
+        out = out.model_copy(update={"gates": gates})
+    return out
+
+
 class FeatureMatcher:
     """Descriptor baseline implementing :class:`seedmap.associate.base.Matcher`.
 
@@ -149,10 +170,7 @@ class FeatureMatcher:
         kind = kind.lower()
         if kind not in KINDS:
             raise ConfigError(f"unknown feature matcher {kind!r} (known: {', '.join(KINDS)})")
-        if cfg is None:
-            cfg = FeatureMatcherConfig()
-        elif isinstance(cfg, dict):
-            cfg = FeatureMatcherConfig.model_validate(cfg)
+        cfg = _resolve_cfg(cfg)
         cfg.check()
         self.kind = kind
         self.name = kind
