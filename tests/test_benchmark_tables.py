@@ -25,6 +25,8 @@ from seedmap.eval.published import PUBLISHED_MDM, published_mean_fraction
 def _rec(rng: str, method: str, L: float, mdm: float, gt: float | None, ate: float | None, status: str = "ok",
          note: str = "", scenario: str = "paper") -> RunRecord:
     r = RunRecord(scenario, rng, method, status, note, range_length_m=L)
+    if scenario == "paper":
+        r.paper_index = int(rng[5:]) - 1
     if status == "ok":
         r.mdm_m, r.mdm_fraction = mdm, mdm / L
         r.gt_mdm_m, r.gt_mdm_fraction = gt, (None if gt is None else gt / L)

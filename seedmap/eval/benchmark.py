@@ -140,6 +140,7 @@ class RunRecord:
     ms_per_frame: float | None = None
     published_mdm_m: float | None = None
     published_failed: bool = False
+    paper_index: int | None = None  # row of the published table (paper scenario only)
     stereo_matches: list[int] = field(default_factory=list)
     temporal_matches: list[int] = field(default_factory=list)
 
@@ -165,7 +166,8 @@ def _sim_cache_name(preset: str, seed: int, overrides: Sequence[str]) -> str:
 
 def paper_ranges(cfg: BenchmarkConfig) -> list[RangeSpec]:
     """The simulated ranges of the paper benchmark (and their harder variations with ``scenes``)."""
-    from seedmap.sim.config import preset_dict
+    from seedmap.config import load_config
+    from seedmap.sim.config import SimConfig, preset_dict
 
     if cfg.seeds is not None and len(cfg.seeds) != len(cfg.presets):
         raise ConfigError(f"--seeds gives {len(cfg.seeds)} seeds for {len(cfg.presets)} ranges; give one per range")
@@ -174,15 +176,18 @@ def paper_ranges(cfg: BenchmarkConfig) -> list[RangeSpec]:
     for k, preset in enumerate(cfg.presets):
         base = preset_dict(preset)
         seed = int(cfg.seeds[k]) if cfg.seeds is not None else int(base.get("seed", 0))
-        length = float(base.get("world", {}).get("length", 0.0)) or None
-        idx = PAPER_RANGE_LENGTHS.index(length) if length in PAPER_RANGE_LENGTHS else None
         ov = tuple(cfg.sim_overrides)
+        length = float(load_config(SimConfig, base=base, overrides=list(ov)).world.length)
+        idx = int(preset[5:]) - 1 if preset.startswith("paper") and preset[5:].isdigit() else None
+        if idx is not None and not 0 <= idx < len(PAPER_RANGE_LENGTHS):
+            idx = None
         out.append(RangeSpec(preset, "paper", data / _sim_cache_name(preset, seed, ov), length, preset, seed, ov,
                              idx))
     if cfg.scenes:
         for spec in list(out):
             seed = int(spec.seed or 0) + SCENE_SEED_OFFSET
             ov = tuple(cfg.sim_overrides) + tuple(cfg.scene_overrides)
+            load_config(SimConfig, base=preset_dict(spec.preset or ""), overrides=list(ov))  # fail early
             out.append(RangeSpec(f"{spec.name}-hard", "scenes", data / _sim_cache_name(spec.preset, seed, ov),
                                  spec.length_m, spec.preset, seed, ov, spec.paper_index))
     return out
@@ -388,6 +393,8 @@ def load_run(run_dir: Path, spec: RangeSpec, method: MethodSpec) -> RunRecord:
 
 def _attach_published(rec: RunRecord, spec: RangeSpec) -> None:
     key = published_key(rec.method)
+    if spec.scenario == "paper":
+        rec.paper_index = spec.paper_index
     if spec.scenario == "paper" and key is not None and spec.paper_index is not None:
         v = PUBLISHED_MDM[key][spec.paper_index]
         rec.published_mdm_m = v
@@ -733,7 +740,7 @@ def table1_csv(records: Sequence[RunRecord]) -> str:
                 r = by.get((sc, n, m))
                 row += [_fmt_m(r, "mdm_m", 3), _fmt_m(r, "gt_mdm_m", 3), _fmt_m(r, "ate_rmse_m", 4),
                         "" if r is None or r.ms_per_frame is None else f"{r.ms_per_frame:.1f}"]
-            pidx = _paper_index_of(rs, n) if sc == "paper" else None
+            pidx = next((r.paper_index for r in rs if r.range_name == n), None) if sc == "paper" else None
             for k in pub_keys:
                 if pidx is None:
                     row.append("")
@@ -742,16 +749,6 @@ def table1_csv(records: Sequence[RunRecord]) -> str:
                     row.append("fail" if v is None else f"{v:.2f}")
             w.writerow(row)
     return buf.getvalue()
-
-
-def _paper_index_of(rs: Sequence[RunRecord], name: str) -> int | None:
-    L = next((r.range_length_m for r in rs if r.range_name == name and r.range_length_m), None)
-    if L is None:
-        return None
-    for i, pl in enumerate(PAPER_RANGE_LENGTHS):
-        if abs(pl - L) < 1e-6 and name == f"paper{i + 1}":
-            return i
-    return next((i for i, pl in enumerate(PAPER_RANGE_LENGTHS) if abs(pl - L) < 1e-6), None)
 
 
 def _png_bytes(fig) -> bytes:
