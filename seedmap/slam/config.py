@@ -1,0 +1,76 @@
+"""Configuration of the semantic stereo SLAM pipeline (``seedmap slam --config/--set``).
+
+Pixel parameters marked *full-res* refer to a 4096 px wide image (facts.md) and are scaled to
+the dataset's width at run time, like the gates.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field
+
+from seedmap.associate.base import GateConfig
+from seedmap.associate.semantic import SemanticConfig
+from seedmap.config import ConfigModel
+
+
+class FrontendConfig(ConfigModel):
+    """Frame-to-frame motion from matched 3D seeds: RANSAC over 3-point Kabsch fits."""
+
+    ransac_iters: int = Field(300, ge=1)
+    #: inlier threshold on the stereo reprojection error (max of |du_l|, |du_r|, |dv|), full-res px
+    ransac_reproj_px: float = Field(8.0, gt=0)
+    refine_iters: int = Field(3, ge=0)
+
+
+class BackendConfig(ConfigModel):
+    """GTSAM factor graph: Pose3 per frame, Point3 per seed landmark, stereo factors."""
+
+    stereo_sigma_px: float = Field(1.0, gt=0)  # image pixels (after scaling)
+    huber_k: float = Field(1.345, gt=0)
+    prior_sigma_rot_rad: float = Field(1e-4, gt=0)
+    prior_sigma_trans_m: float = Field(1e-4, gt=0)
+    between_sigma_rot_rad: float = Field(0.01, gt=0)
+    between_sigma_trans_m: float = Field(0.01, gt=0)
+    min_observations: int = Field(2, ge=2)
+    min_disparity_px: float = Field(20.0, ge=0)  # full-res px (facts.md)
+    #: online optimiser per frame
+    online: Literal["isam2", "none"] = "isam2"
+    #: optional batch optimisation of the whole graph at the end
+    final_batch: Literal["none", "lm", "dogleg"] = "lm"
+    #: a per-frame correction of the motion estimate larger than this means the optimiser failed
+    max_correction_m: float = Field(0.10, gt=0)
+
+
+class LostConfig(ConfigModel):
+    """When the track ends (paper: < 100 3D matches at full resolution with thousands of seeds).
+
+    Our default: fewer than ``min_inliers`` RANSAC-verified 3D seed matches between consecutive
+    frames. The simulated ranges at the default 1434 px width give a few hundred verified matches
+    per frame pair while panicles are in view, so 12 leaves a wide margin while still well above
+    the 3 points a rigid fit needs (a 12-point fit has a pose error of ~1 mm at 0.7 m).
+    """
+
+    min_inliers: int = Field(12, ge=3)
+
+
+class ClusterConfig(ConfigModel):
+    """DBSCAN (Open3D) grouping of landmarks into panicles for landmarks.ply / csv."""
+
+    eps_m: float = Field(0.02, gt=0)
+    min_points: int = Field(5, ge=1)
+
+
+class SlamConfig(ConfigModel):
+    seed: int = 0
+    gates: GateConfig = Field(default_factory=GateConfig)
+    association: SemanticConfig = Field(default_factory=SemanticConfig)
+    frontend: FrontendConfig = Field(default_factory=FrontendConfig)
+    backend: BackendConfig = Field(default_factory=BackendConfig)
+    lost: LostConfig = Field(default_factory=LostConfig)
+    cluster: ClusterConfig = Field(default_factory=ClusterConfig)
+    #: parameters of the descriptor baselines (seedmap.associate.features.FeatureMatcherConfig)
+    features: dict[str, Any] = Field(default_factory=dict)
+    #: process at most this many frames (None = all)
+    max_frames: int | None = Field(None, ge=1)

@@ -1,0 +1,316 @@
+"""The SLAM core: one verb per frame, ``SemanticSlam.register_frame(features)``.
+
+Front-end: triangulate the stereo matches, associate the current left keypoints with the previous
+frame's, estimate the frame-to-frame motion from the 3D seeds with RANSAC + Kabsch, and continue a
+landmark track only through RANSAC-verified matches (a re-seen seed keeps its landmark id; a
+wrong association cannot extend a track).
+
+Back-end (GTSAM 4.3): ``Pose3`` per frame (``X(k)`` = ``T_world_cam`` of the left camera), ``Point3``
+per landmark (``L(id)``), ``GenericStereoFactor3D`` with a Huber loss on ``Cal3_S2Stereo``, a prior
+on the first pose and a ``BetweenFactorPose3`` per frame pair from the motion estimate (noise
+sigmas ordered ``[rotation (rad); translation (m)]`` as GTSAM's Pose3 tangent space). A track
+becomes a landmark (enters the graph, with all its buffered observations) once it has
+``min_observations`` stereo observations with disparity ≥ ``min_disparity`` – a landmark seen once
+is unconstrained along nothing but still poorly conditioned, and this rule keeps
+``IndeterminantLinearSystemException`` away. iSAM2 updates once per frame; :meth:`finalize`
+optionally re-solves the whole graph in batch (Levenberg–Marquardt or Dogleg).
+
+Lost: fewer than ``lost.min_inliers`` verified 3D matches to the previous frame, or the optimiser
+throws / moves the new pose more than ``backend.max_correction_m`` away from the motion estimate.
+After "lost" the object refuses further frames (the paper's maximum-distance-mapped protocol).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+
+from seedmap.associate.base import FULL_RES_WIDTH, FrameFeatures, Matcher
+from seedmap.records import Matches, StereoCalib, Trajectory
+from seedmap.slam.config import SlamConfig
+from seedmap.slam.motion import ransac_motion
+
+
+@dataclass
+class FrameResult:
+    """What happened to one frame."""
+
+    index: int
+    ok: bool
+    T_world_cam: np.ndarray | None
+    n_keypoints_left: int
+    n_stereo: int
+    n_temporal: int
+    n_inliers: int
+    n_landmarks_seen: int
+    lost_reason: str | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Landmarks:
+    """Landmarks of the map: ids, world positions (m), number of observations, GT seed id (-1)."""
+
+    ids: np.ndarray
+    xyz: np.ndarray
+    n_obs: np.ndarray
+    seed_ids: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+class _Track:
+    __slots__ = ("obs", "admitted", "seed_ids")
+
+    def __init__(self) -> None:
+        self.obs: list[tuple[int, float, float, float]] = []  # (frame, uL, uR, v)
+        self.admitted = False
+        self.seed_ids: list[int] = []
+
+
+def _pose3(T: np.ndarray) -> gtsam.Pose3:
+    return gtsam.Pose3(np.asarray(T, float))
+
+
+class SemanticSlam:
+    """Online stereo SLAM over matcher features (any :class:`~seedmap.associate.base.Matcher`)."""
+
+    def __init__(self, calib: StereoCalib, matcher: Matcher, cfg: SlamConfig | None = None,
+                 first_pose: np.ndarray | None = None) -> None:
+        self.calib = calib
+        self.matcher = matcher
+        self.cfg = cfg or SlamConfig()
+        self.rng = np.random.default_rng(self.cfg.seed)
+        self.first_pose = np.eye(4) if first_pose is None else np.asarray(first_pose, float)
+        s = calib.width / FULL_RES_WIDTH
+        self._reproj_px = self.cfg.frontend.ransac_reproj_px * s
+        self._min_disp = self.cfg.backend.min_disparity_px * s
+        b = self.cfg.backend
+        self.K = gtsam.Cal3_S2Stereo(calib.fx, calib.fy, 0.0, calib.cx, calib.cy, calib.baseline)
+        self.stereo_noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k), gtsam.noiseModel.Isotropic.Sigma(3, b.stereo_sigma_px)
+        )
+        self.prior_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.r_[np.full(3, b.prior_sigma_rot_rad), np.full(3, b.prior_sigma_trans_m)]
+        )
+        self.between_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.r_[np.full(3, b.between_sigma_rot_rad), np.full(3, b.between_sigma_trans_m)]
+        )
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(0.01)
+        params.relinearizeSkip = 1
+        self.isam = gtsam.ISAM2(params) if b.online == "isam2" else None
+        self.graph = gtsam.NonlinearFactorGraph()  # everything added so far (for the final batch)
+        self.initial = gtsam.Values()
+        self.estimate = gtsam.Values()
+        self.frames: list[int] = []  # dataset indices of the registered frames, in order
+        self.timestamps: list[float] = []
+        self.online_poses: list[np.ndarray] = []
+        self.tracks: dict[int, _Track] = {}
+        self._next_track = 0
+        self.prev: FrameFeatures | None = None
+        self._prev_stereo_r: np.ndarray | None = None  # right idx per left kp (-1)
+        self._prev_pts: np.ndarray | None = None  # (N, 3) per left kp (NaN)
+        self._prev_track: np.ndarray | None = None  # track id per left kp (-1)
+        self.lost = False
+        self.lost_reason: str | None = None
+        self.lost_frame: int | None = None
+
+    # ------------------------------------------------------------------------------------------
+    def _stereo_arrays(self, f: FrameFeatures) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per left keypoint: right index (-1), (uL, uR, v) obs and 3D point in the camera (NaN)."""
+        n = len(f.kp_left)
+        ridx = np.full(n, -1, np.int64)
+        obs = np.full((n, 3), np.nan)
+        pts = np.full((n, 3), np.nan)
+        m = f.stereo
+        if len(m):
+            ul = f.kp_left[m.idx_a]
+            ur = f.kp_right[m.idx_b, 0]
+            disp = ul[:, 0] - ur
+            ok = disp >= max(self._min_disp, 1e-6)
+            a, b = m.idx_a[ok], m.idx_b[ok]
+            ridx[a] = b
+            obs[a] = np.c_[f.kp_left[a, 0], f.kp_right[b, 0], f.kp_left[a, 1]]
+            pts[a] = self.calib.triangulate(f.kp_left[a], f.kp_right[b, 0])
+        return ridx, obs, pts
+
+    def _declare_lost(self, f: FrameFeatures, reason: str, res: FrameResult) -> FrameResult:
+        self.lost = True
+        self.lost_reason = reason
+        self.lost_frame = f.index
+        res.ok = False
+        res.lost_reason = reason
+        return res
+
+    def _new_track(self) -> int:
+        t = self._next_track
+        self._next_track += 1
+        self.tracks[t] = _Track()
+        return t
+
+    def _add_obs(self, tid: int, k: int, o: np.ndarray, sid: int, T_world_cam: np.ndarray,
+                 pt_cam: np.ndarray, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        tr = self.tracks[tid]
+        tr.obs.append((k, float(o[0]), float(o[1]), float(o[2])))
+        tr.seed_ids.append(int(sid))
+        if tr.admitted:
+            graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(*o), self.stereo_noise, X(k), L(tid), self.K))
+        elif len(tr.obs) >= self.cfg.backend.min_observations:
+            tr.admitted = True
+            for kk, ul, ur, v in tr.obs:
+                graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(ul, ur, v), self.stereo_noise,
+                                                      X(kk), L(tid), self.K))
+            pw = T_world_cam[:3, :3] @ pt_cam + T_world_cam[:3, 3]
+            values.insert(L(tid), gtsam.Point3(*pw))
+
+    # ------------------------------------------------------------------------------------------
+    def register_frame(self, f: FrameFeatures) -> FrameResult:
+        """Add one frame; returns its pose estimate or the reason the track was lost."""
+        if self.lost:
+            raise RuntimeError("SemanticSlam: track already lost; start a new instance")
+        tm: dict[str, float] = {}
+        ridx, obs, pts = self._stereo_arrays(f)
+        has3d = ridx >= 0
+        res = FrameResult(f.index, True, None, len(f.kp_left), int(has3d.sum()), 0, 0, 0, None, tm)
+        k = f.index
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        track = np.full(len(f.kp_left), -1, np.int64)
+        sids = f.seed_ids_left if f.seed_ids_left is not None else np.full(len(f.kp_left), -1)
+
+        if self.prev is None:
+            if has3d.sum() < self.cfg.lost.min_inliers:
+                return self._declare_lost(f, f"too few stereo seed matches in the first frame "
+                                             f"({int(has3d.sum())} < {self.cfg.lost.min_inliers})", res)
+            T = self.first_pose
+            graph.add(gtsam.PriorFactorPose3(X(k), _pose3(T), self.prior_noise))
+            values.insert(X(k), _pose3(T))
+            for i in np.flatnonzero(has3d):
+                track[i] = tid = self._new_track()
+                self._add_obs(tid, k, obs[i], sids[i], T, pts[i], graph, values)
+        else:
+            t0 = time.perf_counter()
+            tmatch: Matches = self.matcher.match_temporal(self.prev, f)
+            tm["temporal_match"] = (time.perf_counter() - t0) * 1e3
+            res.n_temporal = len(tmatch)
+            t0 = time.perf_counter()
+            pa, pb = tmatch.idx_a, tmatch.idx_b
+            both = (self._prev_stereo_r[pa] >= 0) & has3d[pb]
+            pa, pb = pa[both], pb[both]
+            est = None
+            if len(pa) >= 3:
+                est = ransac_motion(self.calib, self._prev_pts[pa], pts[pb], obs[pb], self.rng,
+                                    self.cfg.frontend.ransac_iters, self._reproj_px, self.cfg.frontend.refine_iters)
+            tm["motion"] = (time.perf_counter() - t0) * 1e3
+            n_inl = 0 if est is None else int(est.inliers.sum())
+            res.n_inliers = n_inl
+            if n_inl < self.cfg.lost.min_inliers:
+                return self._declare_lost(f, f"too few verified 3D seed matches ({n_inl} < "
+                                             f"{self.cfg.lost.min_inliers}; {len(tmatch)} temporal matches)", res)
+            T_prev = self.online_poses[-1]
+            T = T_prev @ est.T_prev_cur
+            kp = self.frames[-1]
+            graph.add(gtsam.BetweenFactorPose3(X(kp), X(k), _pose3(est.T_prev_cur), self.between_noise))
+            values.insert(X(k), _pose3(T))
+            inl_a, inl_b = pa[est.inliers], pb[est.inliers]
+            track[inl_b] = self._prev_track[inl_a]
+            for i in np.flatnonzero(has3d):
+                if track[i] < 0:
+                    track[i] = self._new_track()
+                    tr = self.tracks[track[i]]
+                    tr.obs.append((k, *obs[i]))
+                    tr.seed_ids.append(int(sids[i]))
+                else:
+                    self._add_obs(int(track[i]), k, obs[i], sids[i], T, pts[i], graph, values)
+
+        # back-end
+        t0 = time.perf_counter()
+        try:
+            if self.isam is not None:
+                self.isam.update(graph, values)
+                estimate = self.isam.calculateEstimate()
+                T_opt = estimate.atPose3(X(k)).matrix()
+            else:
+                estimate = None
+                T_opt = values.atPose3(X(k)).matrix()
+        except RuntimeError as e:  # IndeterminantLinearSystemException and friends
+            tm["backend"] = (time.perf_counter() - t0) * 1e3
+            return self._declare_lost(f, f"optimiser failed ({type(e).__name__}: {str(e).splitlines()[0][:80]})", res)
+        tm["backend"] = (time.perf_counter() - t0) * 1e3
+        T_pred = values.atPose3(X(k)).matrix()
+        if not np.all(np.isfinite(T_opt)) or np.linalg.norm(T_opt[:3, 3] - T_pred[:3, 3]) > self.cfg.backend.max_correction_m:
+            return self._declare_lost(f, "optimiser diverged (pose moved away from the motion estimate)", res)
+        self.graph.push_back(graph)
+        self.initial.insert(values)
+        if estimate is not None:
+            self.estimate = estimate
+        self.frames.append(k)
+        self.timestamps.append(f.timestamp)
+        self.online_poses.append(T_opt)
+        self.prev = f
+        self._prev_stereo_r, self._prev_pts, self._prev_track = ridx, pts, track
+        res.T_world_cam = T_opt
+        res.n_landmarks_seen = int(sum(1 for t in track[track >= 0] if self.tracks[int(t)].admitted))
+        return res
+
+    # ------------------------------------------------------------------------------------------
+    def online_trajectory(self) -> Trajectory:
+        return Trajectory(np.asarray(self.timestamps), np.asarray(self.online_poses).reshape(-1, 4, 4))
+
+    def _current_values(self) -> gtsam.Values:
+        """Best current values of every variable in :attr:`graph` (iSAM2 estimate, else initial)."""
+        if self.isam is None or self.estimate.size() == 0:
+            return gtsam.Values(self.initial)
+        v = gtsam.Values(self.estimate)
+        for key in self.initial.keys():
+            if not v.exists(key):
+                v.insert(key, self.initial.atPose3(key) if gtsam.Symbol(key).chr() == ord("x")
+                         else self.initial.atPoint3(key))
+        return v
+
+    def finalize(self) -> tuple[Trajectory, gtsam.Values, str]:
+        """Final trajectory: batch LM/Dogleg over the whole graph (if configured), else online.
+
+        Returns ``(trajectory, values, backend_name)``; a failing batch falls back to the online
+        estimate (and says so in ``backend_name``).
+        """
+        values = self._current_values()
+        name = "isam2" if self.isam is not None else "motion-only"
+        mode = self.cfg.backend.final_batch
+        if mode != "none" and len(self.frames) > 1:
+            try:
+                if mode == "lm":
+                    p = gtsam.LevenbergMarquardtParams()
+                    p.setMaxIterations(50)
+                    values = gtsam.LevenbergMarquardtOptimizer(self.graph, values, p).optimize()
+                else:
+                    p = gtsam.DoglegParams()
+                    p.setMaxIterations(50)
+                    values = gtsam.DoglegOptimizer(self.graph, values, p).optimize()
+                name = f"{name}+{mode}"
+            except RuntimeError:
+                name = f"{name} (batch {mode} failed)"
+        poses = np.asarray([values.atPose3(X(k)).matrix() for k in self.frames]).reshape(-1, 4, 4)
+        return Trajectory(np.asarray(self.timestamps), poses), values, name
+
+    def landmarks(self, values: gtsam.Values | None = None) -> Landmarks:
+        """Admitted landmarks with their positions in ``values`` (default: current estimate)."""
+        values = values if values is not None else self._current_values()
+        ids, xyz, nobs, sids = [], [], [], []
+        for tid, tr in self.tracks.items():
+            if not tr.admitted or not values.exists(L(tid)):
+                continue
+            ids.append(tid)
+            xyz.append(values.atPoint3(L(tid)))
+            nobs.append(len(tr.obs))
+            known = [s for s in tr.seed_ids if s >= 0]
+            sids.append(Counter(known).most_common(1)[0][0] if known else -1)
+        return Landmarks(np.asarray(ids, np.int64), np.asarray(xyz, float).reshape(-1, 3),
+                         np.asarray(nobs, np.int64), np.asarray(sids, np.int64))
