@@ -12,7 +12,7 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from seedmap.errors import InputError
+from seedmap.errors import ConfigError, InputError
 from seedmap.records import StereoCalib, StereoFrame, Trajectory
 
 
@@ -41,8 +41,17 @@ def loader_names() -> list[str]:
     return [n for n, _, _ in _LOADERS]
 
 
+def detect_format(path: str | Path) -> str | None:
+    """Name of the first loader that recognises ``path`` (``None``: none does)."""
+    p = Path(path)
+    for name, detect, _ in _LOADERS:
+        if detect(p):
+            return name
+    return None
+
+
 def open_dataset(path: str | Path, fmt: str | None = None, **kwargs) -> StereoSequence:
-    """Open any supported stereo dataset; ``fmt`` forces a loader by name."""
+    """Open any supported stereo dataset; ``fmt`` forces a loader by name; ``kwargs`` go to the loader."""
     p = Path(path)
     if not p.exists():
         raise InputError("dataset not found", p)
@@ -54,10 +63,81 @@ def open_dataset(path: str | Path, fmt: str | None = None, **kwargs) -> StereoSe
     raise InputError(f"no loader recognises this path (known formats: {', '.join(loader_names())})", p)
 
 
-def _register_builtin() -> None:
-    from seedmap.io.seedmap_dataset import SeedmapDataset
+def _is_seedmap(p: Path) -> bool:
+    from seedmap.io.seedmap_dataset import SeedmapDataset, frame_name
 
-    register_loader("seedmap", SeedmapDataset.is_dataset, lambda p, **kw: SeedmapDataset(p))
+    # a generic folder with calib.yaml + times.txt but other file names is left to the folder loader
+    return SeedmapDataset.is_dataset(p) and (
+        (p / "left" / frame_name(0)).is_file() or not any((p / "left").iterdir()))
+
+
+def _construct(cls: type, p: Path, kw: dict) -> StereoSequence:
+    """``cls(p, **kw)`` with a one-line ConfigError for options this format does not have."""
+    import inspect
+
+    accepted = set(inspect.signature(cls).parameters) - {"root", "path"}
+    bad = sorted(set(kw) - accepted)
+    if bad:
+        raise ConfigError(f"format {cls.name!r} has no option {', '.join(bad)} (it takes: "
+                          f"{', '.join(sorted(accepted)) or 'none'})", p)
+    return cls(p, **kw)
+
+
+def _register_builtin() -> None:
+    """Loaders tried in this order; each opener takes the path plus its own keyword options."""
+
+    def seedmap_opener(p: Path, **kw) -> StereoSequence:
+        from seedmap.io.seedmap_dataset import SeedmapDataset
+
+        if kw:
+            raise ConfigError(f"the seedmap dataset format takes no options (got {', '.join(sorted(kw))})", p)
+        return SeedmapDataset(p)
+
+    def rosbag_detect(p: Path) -> bool:
+        from seedmap.io.rosbag import is_bag
+
+        return is_bag(p)
+
+    def rosbag_opener(p: Path, **kw) -> StereoSequence:
+        from seedmap.io.rosbag import RosbagSequence
+
+        return _construct(RosbagSequence, p, kw)
+
+    def euroc_detect(p: Path) -> bool:
+        from seedmap.io.euroc import EurocSequence
+
+        return EurocSequence.is_dataset(p)
+
+    def euroc_opener(p: Path, **kw) -> StereoSequence:
+        from seedmap.io.euroc import EurocSequence
+
+        return _construct(EurocSequence, p, kw)
+
+    def kitti_detect(p: Path) -> bool:
+        from seedmap.io.kitti import KittiSequence
+
+        return KittiSequence.is_dataset(p)
+
+    def kitti_opener(p: Path, **kw) -> StereoSequence:
+        from seedmap.io.kitti import KittiSequence
+
+        return _construct(KittiSequence, p, kw)
+
+    def folder_detect(p: Path) -> bool:
+        from seedmap.io.folder import StereoFolder
+
+        return StereoFolder.is_dataset(p)
+
+    def folder_opener(p: Path, **kw) -> StereoSequence:
+        from seedmap.io.folder import StereoFolder
+
+        return _construct(StereoFolder, p, kw)
+
+    register_loader("seedmap", _is_seedmap, seedmap_opener)
+    register_loader("rosbag", rosbag_detect, rosbag_opener)
+    register_loader("euroc", euroc_detect, euroc_opener)
+    register_loader("kitti", kitti_detect, kitti_opener)
+    register_loader("folder", folder_detect, folder_opener)
 
 
 _register_builtin()

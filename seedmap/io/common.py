@@ -1,0 +1,170 @@
+"""Pieces every dataloader shares: image decoding to RGB, timestamp files, frame assembly from a rig."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from seedmap.errors import InputError
+from seedmap.io.calibration import RectifyMaps, StereoRig, check_image_size, rectify
+from seedmap.records import StereoCalib, StereoFrame
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
+
+
+def to_rgb(img: np.ndarray, bgr: bool = True) -> np.ndarray:
+    """Any 8-bit decoded image -> ``H x W x 3`` RGB uint8 (grayscale is replicated to three channels)."""
+    if img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 1):
+        return cv2.cvtColor(img.reshape(img.shape[0], img.shape[1]), cv2.COLOR_GRAY2RGB)
+    if img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if bgr else cv2.COLOR_RGBA2RGB)
+    if img.shape[2] == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB) if bgr else np.ascontiguousarray(img)
+    raise ValueError(f"{img.shape[2]}-channel image")
+
+
+def decode_image_bytes(data: bytes | np.ndarray, where: str | Path) -> tuple[np.ndarray, bool]:
+    """Decode PNG/JPEG/... bytes to RGB uint8; returns ``(rgb, was_grayscale)``.
+
+    Grayscale images are converted to 3-channel RGB (the caller records a warning: seed detectors are
+    built for colour). 16-bit images are refused - seedmap works on 8-bit images.
+    """
+    buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.reshape(-1)
+    if buf.size == 0:
+        raise InputError("image is empty (0 bytes)", where)
+    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if img is None or img.size == 0:
+        raise InputError("not a readable image (corrupt or unknown format); re-export or remove it", where)
+    if img.dtype != np.uint8:
+        raise InputError(f"{img.dtype} image; seedmap expects 8-bit images (convert to 8-bit)", where)
+    gray = img.ndim == 2 or img.shape[2] == 1
+    try:
+        return to_rgb(img), gray
+    except ValueError as e:
+        raise InputError(f"unsupported image layout ({e})", where) from None
+
+
+def read_image_rgb(path: Path) -> tuple[np.ndarray, bool]:
+    """Read an image file as RGB uint8 (grayscale replicated); ``(rgb, was_grayscale)``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("image file not found", path)
+    return decode_image_bytes(np.fromfile(path, dtype=np.uint8), path)
+
+
+def natural_key(p: Path) -> tuple:
+    """Sort key that orders ``img2.png`` before ``img10.png``."""
+    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name))
+
+
+def list_images(folder: Path) -> list[Path]:
+    return sorted((p for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()),
+                  key=natural_key)
+
+
+def check_timestamps(ts: np.ndarray, where: str | Path) -> np.ndarray:
+    """Finite and strictly increasing, else a one-line error naming the file."""
+    ts = np.asarray(ts, float).reshape(-1)
+    if not np.all(np.isfinite(ts)):
+        raise InputError("timestamps contain NaN or inf", where)
+    if len(ts) > 1:
+        bad = np.flatnonzero(np.diff(ts) <= 0)
+        if len(bad):
+            k = int(bad[0])
+            raise InputError(f"timestamps are not strictly increasing (entry {k + 1}: {ts[k + 1]!r} after "
+                             f"{ts[k]!r}); sort the frames or fix the clock", where)
+    return ts
+
+
+def read_times_txt(path: Path, n: int | None = None) -> np.ndarray:
+    """``times.txt``: one timestamp in seconds per line (blank and ``#`` lines ignored); ``n`` = expected count."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("times file not found", path)
+    try:
+        text = path.read_text()
+    except (UnicodeDecodeError, OSError):
+        raise InputError("times file is not text", path) from None
+    vals = []
+    for i, line in enumerate(text.splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.replace(",", " ").split()
+        if len(parts) != 1:
+            raise InputError(f"line {i}: expected one timestamp (seconds) per line, got {len(parts)} values", path)
+        try:
+            vals.append(float(parts[0]))
+        except ValueError:
+            raise InputError(f"line {i}: {parts[0]!r} is not a number", path) from None
+    ts = check_timestamps(np.asarray(vals, float), path)
+    if n is not None and len(ts) != n:
+        raise InputError(f"has {len(ts)} timestamps but there are {n} stereo pairs (one line per pair)", path)
+    return ts
+
+
+def write_times_txt(path: Path, ts: Sequence[float]) -> None:
+    from seedmap.io.atomic import atomic_write_text
+
+    atomic_write_text(Path(path), "".join(f"{t:.9f}\n" for t in ts))
+
+
+class RectifiedPairs:
+    """Base of the file-based loaders: raw pair files + a rig -> rectified RGB :class:`StereoFrame`.
+
+    Subclasses set ``self.rig`` (or ``self.calib`` for already-rectified data), ``self.timestamps`` and
+    ``self._pairs`` (list of ``(left_path, right_path)``), then call :meth:`_setup_rectification`.
+    ``warnings`` collects recoverable oddities (grayscale converted, frames dropped) for the user.
+    """
+
+    name = "pairs"
+    calib: StereoCalib
+    timestamps: np.ndarray
+    rig: StereoRig
+    maps: RectifyMaps | None
+    warnings: list[str]
+
+    def _setup_rectification(self, rig: StereoRig, alpha: float = 0.0) -> None:
+        self.rig = rig
+        self.calib, self.maps = rectify(rig, alpha=alpha)
+        self.warnings.extend(rig.warnings)
+        self._gray_warned = False
+
+    def __len__(self) -> int:
+        return len(self._pairs)
+
+    def _read(self, p: Path) -> np.ndarray:
+        img, gray = read_image_rgb(p)
+        if gray and not self._gray_warned:
+            self._gray_warned = True
+            self.warnings.append(f"{p.parent}: grayscale images converted to 3-channel RGB "
+                                 "(seed detectors expect colour)")
+        return img
+
+    def raw_pair(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The unrectified RGB pair ``i`` as stored on disk."""
+        lp, rp = self._pairs[i]
+        left, right = self._read(lp), self._read(rp)
+        check_image_size(self.rig.left.size, left, lp, self.rig.source)
+        check_image_size(self.rig.right.size, right, rp, self.rig.source)
+        return left, right
+
+    def __getitem__(self, i: int) -> StereoFrame:
+        if not isinstance(i, (int, np.integer)):
+            raise TypeError("frame index must be an integer")
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        left, right = self.raw_pair(int(i))
+        if self.maps is not None:
+            left, right = self.maps.apply(left, right)
+        return StereoFrame(index=int(i), timestamp=float(self.timestamps[i]), left=left, right=right)
+
+    def __iter__(self) -> Iterator[StereoFrame]:
+        for i in range(len(self)):
+            yield self[i]
