@@ -17,7 +17,7 @@ def ds(tmp_path_factory):
 
 def test_registry_names():
     names = available_detectors()
-    assert "gt" in names
+    assert {"gt", "fast", "frcnn-pix2pix"} <= set(names)
     with pytest.raises(SeedmapError, match="unknown detector"):
         make_detector("nope")
 

@@ -19,11 +19,14 @@ from seedmap.detect.base import (
 )
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses, fit_ellipse_mask, fit_ellipses_labels
+from seedmap.detect.fast import FastDetector
 from seedmap.detect.gt import GtDetector
+from seedmap.detect import learned_stub as _learned  # noqa: F401  (registers frcnn-pix2pix lazily)
 
 __all__ = [
     "DetectConfig",
     "Detector",
+    "FastDetector",
     "GtDetector",
     "available_detectors",
     "default_detector_name",
