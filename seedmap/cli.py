@@ -56,6 +56,70 @@ def _root(
 # ================================================================================================
 
 
+@app.command("detect")
+def detect_cmd(
+    dataset: Path = typer.Argument(..., help="Dataset folder (seedmap layout or any supported format)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist unless --overwrite)."),
+    detector: str = typer.Option("default", "--detector", "-d",
+                                 help="gt (ORACLE, simulated data) | fast | frcnn-pix2pix | default."),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="Weights (.safetensors) of the learned detector."),
+    overlay: bool = typer.Option(False, "--overlay", help="Also write PNGs with the fitted ellipses drawn."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output folder."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Detect seeds (boxes, ellipses, keypoints) in every frame: JSON lines + COCO JSON (+ overlays)."""
+    from seedmap.config import load_config
+    from seedmap.detect.config import DetectConfig
+    from seedmap.detect.run import run_detect
+
+    cfg = load_config(DetectConfig, config, set_ or [])
+    p = run_detect(dataset, out, detector, weights, cfg, overlay=overlay, overwrite=overwrite)
+    typer.echo(f"detections written to {p}")
+
+
+@eval_app.command("detect")
+def eval_detect_cmd(
+    dataset: Path = typer.Argument(..., help="Simulated dataset with ground truth."),
+    detections: Path = typer.Argument(..., help="Folder written by `seedmap detect`."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Metrics JSON (default DETECTIONS/detect_metrics.json)."),
+    iou: float = typer.Option(0.5, "--iou", help="Box IoU threshold for a true positive."),
+    matching: str = typer.Option("greedy", "--matching", help="greedy | hungarian one-to-one matching."),
+    min_gt_area: int = typer.Option(0, "--min-gt-area", help="Ignore GT instances with fewer visible pixels."),
+    per_frame: bool = typer.Option(False, "--per-frame", help="Also print the per-frame table."),
+) -> None:
+    """Precision, recall, F1 (box IoU) and keypoint error (px) against GT, per frame and overall."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from seedmap.detect.run import run_eval_detect
+
+    if matching not in ("greedy", "hungarian"):
+        raise SeedmapError(f"--matching must be greedy or hungarian, got {matching!r}")
+    m, path = run_eval_detect(dataset, detections, out, iou, matching, min_gt_area)
+
+    def _f(x: Optional[float], nd: int = 3) -> str:
+        return "-" if x is None else f"{x:.{nd}f}"
+
+    con = Console()
+    if per_frame:
+        t = Table(title="per frame")
+        for c in ("frame", "camera", "det", "gt", "TP", "P", "R", "F1", "kp med px"):
+            t.add_column(c, justify="right")
+        for r in m.per_frame:
+            t.add_row(str(r.frame), r.camera, str(r.n_det), str(r.n_gt), str(r.tp), _f(r.precision), _f(r.recall),
+                      _f(r.f1), _f(r.kp_err_median_px, 2))
+        con.print(t)
+    t = Table(title=f"detection vs GT (IoU >= {m.iou_threshold}, {m.matching})")
+    for c in ("images", "det", "gt", "TP", "precision", "recall", "F1", "kp med px", "kp mean px", "kp p90 px",
+              "kp <= 1px"):
+        t.add_column(c, justify="right")
+    t.add_row(str(len(m.per_frame)), str(m.n_det), str(m.n_gt), str(m.tp), _f(m.precision), _f(m.recall), _f(m.f1),
+              _f(m.kp_err_median_px, 2), _f(m.kp_err_mean_px, 2), _f(m.kp_err_p90_px, 2), _f(m.kp_within_1px))
+    con.print(t)
+    typer.echo(f"metrics written to {path}")
+
+
 # ================================================================================================
 # slam / demo / eval associate / eval slam (seedmap.associate, seedmap.slam)
 # ================================================================================================
