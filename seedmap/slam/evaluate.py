@@ -1,0 +1,46 @@
+"""Recompute the metrics of a ``seedmap slam`` result folder against a dataset's ground truth."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+from seedmap.errors import InputError
+from seedmap.eval.slam_metrics import SlamMetrics, compute_slam_metrics
+
+
+def evaluate_result_dir(result: str | Path, dataset: str | Path, json_out: Path | None = None) -> SlamMetrics:
+    """Metrics from ``result/trajectory.tum`` (+ lost frame/reason and timings from its
+    metrics.json) and the dataset's GT trajectory / range length."""
+    from seedmap.io import open_dataset
+    from seedmap.io.trajectory import read_tum
+    from seedmap.slam.pipeline import range_length_of
+
+    result = Path(result)
+    if not result.is_dir():
+        raise InputError("result folder not found", result)
+    est = read_tum(result / "trajectory.tum")
+    old: dict = {}
+    mp = result / "metrics.json"
+    if mp.is_file():
+        try:
+            old = json.loads(mp.read_text())
+        except json.JSONDecodeError:
+            raise InputError("metrics.json is not valid JSON", mp) from None
+    ds = open_dataset(dataset)
+    gt = ds.gt_trajectory()
+    if gt is None:
+        raise InputError("dataset has no ground-truth trajectory (gt/poses_tum.txt)", dataset)
+    online = read_tum(result / "trajectory_online.tum") if (result / "trajectory_online.tum").is_file() else None
+    m = compute_slam_metrics(
+        est, gt, frames=int(old.get("frames", len(ds))), lost_frame=old.get("lost_frame"),
+        lost_reason=old.get("lost_reason"), range_length=range_length_of(dataset),
+        ms_per_frame=old.get("ms_per_frame", {}), online=online, matcher=old.get("matcher", ""),
+        detector=old.get("detector", ""), backend=old.get("backend", ""), landmarks=int(old.get("landmarks", 0)),
+    )
+    if json_out is not None:
+        from seedmap.io.atomic import atomic_write_text
+
+        atomic_write_text(Path(json_out), json.dumps(asdict(m), indent=2) + "\n")
+    return m
