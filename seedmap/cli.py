@@ -125,6 +125,130 @@ def eval_detect_cmd(
 # ================================================================================================
 
 
+def _slam_config(config: Optional[Path], overrides: Optional[List[str]]):
+    from seedmap.config import load_config
+    from seedmap.slam.config import SlamConfig
+
+    return load_config(SlamConfig, config, overrides or [])
+
+
+def _print_slam_metrics(m, title: str) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    def f(v, unit="", pct=False):
+        if v is None:
+            return "–"
+        return f"{100 * v:.1f} %" if pct else f"{v:.4f}{unit}"
+
+    t = Table(title=title)
+    t.add_column("metric")
+    t.add_column("value", justify="right")
+    t.add_row("frames tracked / total", f"{m.frames_tracked} / {m.frames}")
+    t.add_row("MDM", f"{f(m.mdm_m, ' m')} ({f(m.mdm_fraction, pct=True)})")
+    t.add_row("GT-validated MDM", f"{f(m.gt_mdm_m, ' m')} ({f(m.gt_mdm_fraction, pct=True)})")
+    t.add_row("ATE RMSE (SE3 / first pose)", f"{f(m.ate_rmse_m, ' m')} / {f(m.ate_first_pose_rmse_m, ' m')}")
+    t.add_row("RPE trans RMSE", f(m.rpe_trans_rmse_m, " m"))
+    t.add_row("lost", "never" if m.lost_frame is None else f"frame {m.lost_frame}: {m.lost_reason}")
+    t.add_row("ms / frame", f"{m.ms_per_frame.get('total_per_frame', float('nan')):.1f}")
+    Console().print(t)
+
+
+@app.command("slam")
+def slam_cmd(
+    dataset: Path = typer.Argument(..., help="Stereo dataset (seedmap layout or any registered loader)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Result folder (written atomically)."),
+    detector: str = typer.Option("gt", "--detector", "-d", help="Seed detector for --matcher seeds (gt = oracle)."),
+    matcher: str = typer.Option("seeds", "--matcher", "-m", help="seeds | sift | orb | akaze | surf"),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing result folder."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Semantic stereo SLAM: trajectory, seed map and metrics (MDM, ATE, RPE) into --out."""
+    from seedmap.slam.pipeline import run_slam
+
+    cfg = _slam_config(config, set_)
+    res = run_slam(dataset, out, matcher=matcher, detector=detector, config=cfg, overwrite=overwrite,
+                   progress=not quiet)
+    _print_slam_metrics(res.metrics, f"seedmap slam: {dataset.name} ({matcher})")
+    typer.echo(f"results in {out}")
+
+
+@app.command("demo")
+def demo_cmd(
+    data: Path = typer.Option(Path("data/demo"), "--data", help="Where the demo range is simulated (kept)."),
+    out: Path = typer.Option(Path("results/demo"), "--out", "-o", help="SLAM result folder (replaced)."),
+    length: float = typer.Option(1.5, "--length", help="Demo range length (m)."),
+    detector: Optional[str] = typer.Option(None, "--detector", help="Detector (default: best available)."),
+) -> None:
+    """Simulate a short range (once), detect seeds, run SLAM, print a summary table."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+    from seedmap.slam.pipeline import run_slam
+
+    if not SeedmapDataset.is_dataset(data):
+        from seedmap.config import load_config
+        from seedmap.sim import simulate_range
+        from seedmap.sim.config import SimConfig
+
+        typer.echo(f"simulating a {length:g} m range into {data} ...")
+        sim_cfg = load_config(SimConfig, None, [f"world.length={length}"])
+        simulate_range(sim_cfg, data, overwrite=True, progress=True)
+    else:
+        typer.echo(f"using the existing demo range {data}")
+    if detector is None:
+        from seedmap.detect import default_detector_name
+
+        detector = default_detector_name()
+    res = run_slam(data, out, matcher="seeds", detector=detector, overwrite=True, progress=True)
+    _print_slam_metrics(res.metrics, f"seedmap demo: seeds matcher, detector {detector}")
+    typer.echo(f"results in {out} (report.md, topview.png, landmarks.ply, trajectory.tum)")
+
+
+@eval_app.command("associate")
+def eval_associate_cmd(
+    dataset: Path = typer.Argument(..., help="Simulated dataset with ground truth."),
+    detector: str = typer.Option("gt", "--detector", "-d", help="Detector whose keypoints carry GT ids (gt)."),
+    matcher: str = typer.Option("seeds", "--matcher", "-m"),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Only the first N frames."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write the report as JSON here."),
+) -> None:
+    """Stereo and temporal match precision / recall against ground-truth seed ids."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from seedmap.eval.associate_metrics import evaluate_association, write_report
+
+    cfg = _slam_config(config, set_)
+    rep = evaluate_association(dataset, detector=detector, matcher=matcher, config=cfg, max_frames=max_frames)
+    t = Table(title=f"association: {dataset.name} ({matcher}, detector {detector})")
+    for c in ("", "matches", "correct", "possible", "precision", "recall", "recall (gated)"):
+        t.add_column(c, justify="right")
+    for name, s in (("stereo", rep.stereo), ("temporal", rep.temporal)):
+        f = lambda v: "–" if v is None else f"{v:.4f}"  # noqa: E731
+        t.add_row(name, str(s["matches"]), str(s["correct"]), str(s["possible"]), f(s["precision"]),
+                  f(s["recall"]), f(s["recall_gated"]))
+    Console().print(t)
+    if out is not None:
+        write_report(rep, out)
+        typer.echo(f"report in {out}")
+
+
+@eval_app.command("slam")
+def eval_slam_cmd(
+    result: Path = typer.Argument(..., help="A folder written by `seedmap slam`."),
+    dataset: Path = typer.Argument(..., help="The dataset it ran on (with ground truth)."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the recomputed metrics here."),
+) -> None:
+    """Recompute MDM, GT-validated MDM, ATE and RPE of a result folder against the dataset's GT."""
+    from seedmap.slam.evaluate import evaluate_result_dir
+
+    m = evaluate_result_dir(result, dataset, json_out)
+    _print_slam_metrics(m, f"eval slam: {result.name}")
+
+
 # ================================================================================================
 # benchmark (seedmap.eval)
 # ================================================================================================
