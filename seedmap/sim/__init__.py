@@ -1,0 +1,32 @@
+"""Procedural sorghum world and ground-truth stereo renderer (the data every other module is measured on).
+
+Public API::
+
+    build_range_world(cfg, rng) -> World        a sorghum range (plants over x in [0, length])
+    build_panicle_world(cfg, rng) -> World      one panicle, rachis along +z, base at the origin
+    render_stereo(world, T_world_cam, calib, cfg, rng, t) -> RenderedStereo
+    simulate_range(cfg, out, overwrite=False, progress=True) -> Path   a whole dataset, atomically
+    range_length(dataset_path) -> float | None  the range length recorded in gt/config.yaml
+
+Heavy imports (Open3D) happen only when rendering.
+"""
+
+from seedmap.sim.config import PRESETS, SimConfig, preset_dict
+from seedmap.sim.range import range_length, range_trajectory, simulate_range
+from seedmap.sim.render import RenderedStereo, render_stereo, right_pose
+from seedmap.sim.world import World, build_panicle_world, build_range_world
+
+__all__ = [
+    "PRESETS",
+    "RenderedStereo",
+    "SimConfig",
+    "World",
+    "build_panicle_world",
+    "build_range_world",
+    "preset_dict",
+    "range_length",
+    "range_trajectory",
+    "render_stereo",
+    "right_pose",
+    "simulate_range",
+]

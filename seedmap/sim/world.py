@@ -1,0 +1,485 @@
+"""The procedural sorghum world: plants, panicles made of seeds, leaves, stalks, soil and wind.
+
+World frame: x along the row (direction of travel), y from the robot towards the row, z up,
+ground at z = 0. All lengths in metres, angles in radians inside this module.
+
+Every seed is a low-poly ellipsoid with a global id (0..N-1, contiguous per panicle). Panicles and
+leaves sway rigidly about their base (wind); ``World.panicle_motion(t)`` gives the motion ``D`` with
+``p_world(t) = D @ p_rest`` for every panicle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from seedmap.io.seedmap_dataset import SeedTable
+from seedmap.sim.config import SimConfig
+from seedmap.sim.meshes import cylinder, polyline_tube, ribbon_topology
+
+# surface classes of the renderer
+CLS_NONE, CLS_SOIL, CLS_STALK, CLS_LEAF, CLS_SEED, CLS_RACHIS = 0, 1, 2, 3, 4, 5
+
+# linear-RGB albedos of grain colours (white/cream, tan, red-brown, dark brown) and glume colours
+SEED_COLORS = {
+    "white": np.array([0.74, 0.66, 0.50]),
+    "tan": np.array([0.60, 0.42, 0.22]),
+    "red": np.array([0.50, 0.20, 0.10]),
+    "brown": np.array([0.28, 0.15, 0.08]),
+}
+GLUME_COLORS = np.array([
+    [0.60, 0.50, 0.32],  # straw
+    [0.42, 0.28, 0.14],  # tan-brown
+    [0.30, 0.12, 0.07],  # red-brown
+    [0.07, 0.055, 0.045],  # black
+])
+LEAF_COLORS = np.array([
+    [0.10, 0.22, 0.06],  # green
+    [0.16, 0.26, 0.07],  # yellow-green
+    [0.30, 0.30, 0.12],  # senescing
+    [0.42, 0.36, 0.22],  # dry, straw
+])
+N_LEAF_SEG = 16
+N_SWAY = 2  # sinusoids per sway angle
+
+
+@dataclass
+class Panicle:
+    """One panicle: its seeds are global ids ``seed_start .. seed_stop - 1``."""
+
+    id: int
+    base: np.ndarray  # (3,) rest position of the panicle base (m)
+    axis: np.ndarray  # (3,) unit rachis direction at rest
+    length: float
+    width: float
+    loose: bool
+    color: str
+    seed_start: int
+    seed_stop: int
+    center: np.ndarray  # bounding sphere at rest (m)
+    radius: float
+    rachis_vertices: np.ndarray  # rachis + branches mesh, rest world coordinates
+    rachis_triangles: np.ndarray
+    sway: np.ndarray  # (2, N_SWAY, 3) amplitude (rad), frequency (Hz), phase (rad) per tilt axis
+
+    @property
+    def n_seeds(self) -> int:
+        return self.seed_stop - self.seed_start
+
+
+@dataclass
+class World:
+    """Everything the renderer needs. Arrays are indexed by global seed id / leaf index."""
+
+    kind: str  # "range" or "panicle"
+    cfg: SimConfig
+    length: float  # plants span x in [0, length] (range worlds); 0 for a panicle world
+    seeds: SeedTable
+    seed_axes: np.ndarray  # (N, 3, 3) columns = local axes of each seed (axis 2 = long axis, outward)
+    seed_albedo: np.ndarray  # (N, 3) linear RGB
+    glume_albedo: np.ndarray  # (N, 3)
+    glume_extent: np.ndarray  # (N,) glume covers the seed where local z / rz < glume_extent
+    seed_ao: np.ndarray  # (N,) baked ambient occlusion in [0, 1] (1 = open)
+    panicles: list[Panicle]
+    # leaves: same topology for all, (L, V, 3) rest vertices
+    leaf_vertices: np.ndarray
+    leaf_triangles: np.ndarray
+    leaf_uv: np.ndarray
+    leaf_attach: np.ndarray  # (L, 3) sway pivot
+    leaf_color: np.ndarray  # (L, 3)
+    leaf_sway: np.ndarray  # (L, 2, N_SWAY, 3)
+    stalk_vertices: np.ndarray  # all stalks, static
+    stalk_triangles: np.ndarray
+    stalk_color: np.ndarray  # (V, 3) per-vertex albedo
+    soil_texture: np.ndarray  # (S, S) float32 in ~[0.6, 1.4], tiled every ``soil_tile`` metres
+    soil_tile: float = 1.5
+    soil_color: np.ndarray = field(default_factory=lambda: np.array([0.26, 0.19, 0.13]))
+    has_soil: bool = True
+    cache: dict = field(default_factory=dict, repr=False)  # renderer's per-panicle BVHs
+
+    # ---- wind ----
+    def panicle_motion(self, t: float) -> np.ndarray:
+        """``(P, 4, 4)`` sway motions ``D`` at time ``t`` (s): rotation about each panicle's base."""
+        P = len(self.panicles)
+        D = np.tile(np.eye(4), (P, 1, 1))
+        if P == 0 or not self.cfg.wind.enabled:
+            return D
+        sway = np.stack([p.sway for p in self.panicles])  # (P, 2, K, 3)
+        base = np.stack([p.base for p in self.panicles])
+        return _sway_transforms(sway, base, t)
+
+    def leaf_motion(self, t: float) -> np.ndarray:
+        L = len(self.leaf_attach)
+        if L == 0 or not self.cfg.wind.enabled:
+            return np.tile(np.eye(4), (L, 1, 1))
+        return _sway_transforms(self.leaf_sway, self.leaf_attach, t)
+
+    def seed_centers_at(self, t: float, D: np.ndarray | None = None) -> np.ndarray:
+        """``(N, 3)`` seed centres at time ``t`` (wind applied)."""
+        if D is None:
+            D = self.panicle_motion(t)
+        out = np.empty_like(self.seeds.xyz)
+        for k, p in enumerate(self.panicles):
+            s = slice(p.seed_start, p.seed_stop)
+            out[s] = self.seeds.xyz[s] @ D[k, :3, :3].T + D[k, :3, 3]
+        return out
+
+
+def _sway_transforms(sway: np.ndarray, pivots: np.ndarray, t: float) -> np.ndarray:
+    """Rotations about world x and y (tilts) through ``pivots`` from summed sinusoids."""
+    amp, freq, phase = sway[..., 0], sway[..., 1], sway[..., 2]
+    ang = np.sum(amp * np.sin(2 * np.pi * freq * t + phase), axis=-1)  # (n, 2)
+    rv = np.column_stack([ang[:, 0], ang[:, 1], np.zeros(len(ang))])
+    R = Rotation.from_rotvec(rv).as_matrix()
+    D = np.tile(np.eye(4), (len(ang), 1, 1))
+    D[:, :3, :3] = R
+    D[:, :3, 3] = pivots - np.einsum("nij,nj->ni", R, pivots)
+    return D
+
+
+def _sway_params(rng: np.random.Generator, n: int, amp_deg: float, cfg: SimConfig) -> np.ndarray:
+    out = np.zeros((n, 2, N_SWAY, 3))
+    a = np.radians(amp_deg)
+    # split the amplitude over the sinusoids so the peak stays near amp_deg
+    out[..., 0] = a * rng.uniform(0.4, 0.8, (n, 2, N_SWAY)) / np.sqrt(N_SWAY)
+    out[..., 1] = rng.uniform(cfg.wind.freq_min, max(cfg.wind.freq_max, cfg.wind.freq_min), (n, 2, N_SWAY))
+    out[..., 2] = rng.uniform(0, 2 * np.pi, (n, 2, N_SWAY))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# panicles
+# ------------------------------------------------------------------------------------------------
+
+
+def _frame_from_axis(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A random rotation whose third column is ``a`` (unit)."""
+    tmp = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
+    u = np.cross(a, tmp)
+    u /= np.linalg.norm(u)
+    w = np.cross(a, u)
+    th = rng.uniform(0, 2 * np.pi)
+    u2 = np.cos(th) * u + np.sin(th) * w
+    w2 = np.cross(a, u2)
+    return np.column_stack([u2, w2, a])
+
+
+def _envelope(s: np.ndarray, R: float) -> np.ndarray:
+    """Spindle radius at relative height ``s`` in [0, 1] (widest at ~40 % of the length)."""
+    s = np.clip(s, 0, 1)
+    return R * np.sin(np.pi * s ** 0.756) ** 0.7
+
+
+def _thin(points: np.ndarray, order: np.ndarray, dmin: float, n_max: int) -> np.ndarray:
+    """Greedy dart-throwing in ``order``: keep points at least ``dmin`` apart, at most ``n_max``."""
+    tree = cKDTree(points)
+    nbrs = tree.query_ball_point(points, dmin)
+    kept = np.zeros(len(points), bool)
+    out = []
+    for i in order:
+        nb = nbrs[i]
+        if len(nb) > 1 and kept[nb].any():
+            continue
+        kept[i] = True
+        out.append(i)
+        if len(out) >= n_max:
+            break
+    return np.array(out, np.int64)
+
+
+@dataclass
+class _PanicleSeeds:
+    local_xyz: np.ndarray
+    local_axes: np.ndarray
+    radii: np.ndarray
+    ao: np.ndarray
+    rachis_v: np.ndarray
+    rachis_f: np.ndarray
+
+
+def _grow_panicle(rng: np.random.Generator, cfg: SimConfig, n_target: int, L: float, W: float,
+                  loose: bool) -> _PanicleSeeds:
+    """Seeds of one panicle in its local frame (rachis along +z from the origin)."""
+    pc = cfg.panicle
+    R = W / 2
+    d_mean = rng.uniform(pc.seed_diameter_min, pc.seed_diameter_max)
+    # primary branches in whorls along the rachis, golden-angle phyllotaxis
+    step = rng.uniform(0.004, 0.006) if not loose else rng.uniform(0.009, 0.014)
+    n_br = max(6, int(L * 0.92 / step))
+    h0 = np.sort(rng.uniform(0.04 * L, 0.95 * L, n_br))
+    phi = np.arange(n_br) * 2.39996 + rng.normal(0, 0.3, n_br)
+    rise_ang = np.radians(rng.uniform(25, 45, n_br) if not loose else rng.uniform(35, 60, n_br))
+    r_here = np.maximum(_envelope(h0 / L, R), 0.006)
+    h1 = np.minimum(h0 + r_here / np.tan(rise_ang), L * 1.0)
+    r_end = np.maximum(_envelope(h1 / L, R), 0.5 * d_mean) * rng.uniform(0.8, 1.0, n_br)
+    radial = np.stack([np.cos(phi), np.sin(phi), np.zeros(n_br)], 1)
+    p_start = np.stack([np.zeros(n_br), np.zeros(n_br), h0], 1)
+    p_end = radial * r_end[:, None] + np.stack([np.zeros(n_br), np.zeros(n_br), h1], 1)
+    # candidate seeds around the outer part of every branch
+    m = int(np.ceil(3.5 * n_target / n_br))
+    t = 1.0 - rng.uniform(0, 1, (n_br, m)) ** 1.6 * 0.65
+    cand = p_start[:, None, :] + t[..., None] * (p_end - p_start)[:, None, :]
+    tube = (0.45 * r_end if not loose else 0.28 * r_end)[:, None, None]
+    cand = cand + rng.normal(0, 1, cand.shape) * tube * 0.6
+    cand = cand.reshape(-1, 3)
+    branch_of = np.repeat(np.arange(n_br), m)
+    # keep inside the spindle (project outliers onto it) and away from the rachis
+    h = cand[:, 2]
+    ok = (h > 0.02 * L) & (h < 0.995 * L)
+    cand, branch_of = cand[ok], branch_of[ok]
+    h = cand[:, 2]
+    rr = np.linalg.norm(cand[:, :2], axis=1)
+    env = np.maximum(_envelope(h / L, R), 0.6 * d_mean)
+    scale = np.where(rr > env - 0.5 * d_mean, (env - 0.5 * d_mean * rng.uniform(0.5, 1.2, len(rr))) /
+                     np.maximum(rr, 1e-9), 1.0)
+    cand[:, :2] *= np.clip(scale, 0, None)[:, None]
+    rr = np.linalg.norm(cand[:, :2], axis=1)
+    inner = rr > 0.8 * d_mean
+    cand, branch_of, rr, env = cand[inner], branch_of[inner], rr[inner], env[inner]
+    # outer seeds first: the visible surface fills densely, the interior only for big counts
+    key = (env - rr) / d_mean + rng.uniform(0, 0.6, len(rr))
+    order = np.argsort(key)
+    keep = _thin(cand, order, 0.88 * d_mean, n_target)
+    xyz = cand[keep]
+    n = len(xyz)
+    # seed shape and orientation: long axis outward and somewhat upward
+    d = np.clip(d_mean * rng.normal(1.0, 0.07, n), pc.seed_diameter_min * 0.9, pc.seed_diameter_max * 1.1)
+    radii = (d / 2)[:, None] * np.array([1.0, 0.86, 1.1]) * rng.normal(1.0, 0.04, (n, 3))
+    out = np.column_stack([xyz[:, :2], np.zeros(n)])
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-9)
+    long_ax = out + np.array([0, 0, 0.6]) + rng.normal(0, 0.25, (n, 3))
+    long_ax /= np.linalg.norm(long_ax, axis=1, keepdims=True)
+    axes = np.stack([_frame_from_axis(a, rng) for a in long_ax])
+    depth = (env[keep] - rr[keep]) / d_mean  # in seed diameters below the envelope
+    ao = np.clip(1.0 - 0.28 * depth, 0.25, 1.0) * rng.uniform(0.9, 1.0, n)
+    # rachis and visible branches (thin cylinders)
+    rv, rf = [], []
+    off = 0
+    v, f = cylinder(np.zeros(3), np.array([0, 0, 0.97 * L]), 0.0022, 0.0012, sides=6)
+    rv.append(v)
+    rf.append(f)
+    off += len(v)
+    for k in range(n_br):
+        v, f = cylinder(p_start[k], p_end[k] * 0.92 + p_start[k] * 0.08, 0.0008, 0.0005, sides=4)
+        rv.append(v)
+        rf.append(f + off)
+        off += len(v)
+    return _PanicleSeeds(xyz, axes, radii, ao, np.vstack(rv), np.vstack(rf))
+
+
+def _seed_colors(rng: np.random.Generator, n: int, color: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    base = SEED_COLORS[color] * rng.uniform(0.85, 1.12) * (1 + rng.normal(0, 0.04, 3))
+    shade = np.exp(rng.normal(0, 0.10, (n, 1)))  # per-seed brightness
+    tint = 1 + rng.normal(0, 0.035, (n, 3))  # per-seed hue
+    albedo = np.clip(base[None, :] * shade * tint, 0.01, 0.95)
+    g = {"white": [0, 1], "tan": [0, 1, 3], "red": [1, 2, 3], "brown": [2, 3]}[color]
+    gl = GLUME_COLORS[rng.choice(g)] * (1 + rng.normal(0, 0.05, 3))
+    glume = np.clip(gl[None, :] * np.exp(rng.normal(0, 0.12, (n, 1))), 0.01, 0.9)
+    extent = np.clip(rng.uniform(-0.55, 0.05) + rng.normal(0, 0.12, n), -0.95, 0.4)
+    return albedo, glume, extent
+
+
+# ------------------------------------------------------------------------------------------------
+# plants
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Parts:
+    seeds_xyz: list = field(default_factory=list)
+    seeds_axes: list = field(default_factory=list)
+    seeds_radii: list = field(default_factory=list)
+    seeds_pid: list = field(default_factory=list)
+    seeds_albedo: list = field(default_factory=list)
+    seeds_glume: list = field(default_factory=list)
+    seeds_extent: list = field(default_factory=list)
+    seeds_ao: list = field(default_factory=list)
+    panicles: list = field(default_factory=list)
+    leaves: list = field(default_factory=list)  # (V, 3) arrays
+    leaf_attach: list = field(default_factory=list)
+    leaf_color: list = field(default_factory=list)
+    stalk_v: list = field(default_factory=list)
+    stalk_f: list = field(default_factory=list)
+    stalk_c: list = field(default_factory=list)
+    n_seeds: int = 0
+    n_stalk_v: int = 0
+
+
+def _add_panicle(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, base: np.ndarray,
+                 axis: np.ndarray) -> None:
+    pc = cfg.panicle
+    n_target = int(rng.integers(pc.seeds_min, pc.seeds_max + 1))
+    q = (n_target - pc.seeds_min) / max(pc.seeds_max - pc.seeds_min, 1)
+    q2 = np.clip(q + rng.normal(0, 0.15), 0, 1)
+    L = pc.length_min + (pc.length_max - pc.length_min) * q2
+    W = pc.width_min + (pc.width_max - pc.width_min) * np.clip(q + rng.normal(0, 0.2), 0, 1)
+    loose = bool(rng.uniform() < pc.loose_fraction)
+    color = str(rng.choice(pc.seed_colors))
+    g = _grow_panicle(rng, cfg, n_target, L, W, loose)
+    Rm = _frame_from_axis(axis, rng)  # local z -> axis, random spin about it
+    xyz = g.local_xyz @ Rm.T + base
+    axes = np.einsum("ij,njk->nik", Rm, g.local_axes)
+    n = len(xyz)
+    pid = len(parts.panicles)
+    albedo, glume, extent = _seed_colors(rng, n, color)
+    rv = g.rachis_v @ Rm.T + base
+    allp = np.vstack([xyz, rv])
+    lo, hi = allp.min(0) - 0.006, allp.max(0) + 0.006
+    center = (lo + hi) / 2
+    radius = float(np.linalg.norm(allp - center, axis=1).max() + 0.006)
+    parts.panicles.append(Panicle(
+        id=pid, base=np.asarray(base, float), axis=np.asarray(axis, float), length=float(L), width=float(W),
+        loose=loose, color=color, seed_start=parts.n_seeds, seed_stop=parts.n_seeds + n, center=center,
+        radius=radius, rachis_vertices=rv, rachis_triangles=g.rachis_f,
+        sway=_sway_params(rng, 1, cfg.wind.panicle_amplitude_deg, cfg)[0]))
+    parts.seeds_xyz.append(xyz)
+    parts.seeds_axes.append(axes)
+    parts.seeds_radii.append(g.radii)
+    parts.seeds_pid.append(np.full(n, pid))
+    parts.seeds_albedo.append(albedo)
+    parts.seeds_glume.append(glume)
+    parts.seeds_extent.append(extent)
+    parts.seeds_ao.append(g.ao)
+    parts.n_seeds += n
+
+
+def _leaf_vertices(rng: np.random.Generator, attach: np.ndarray, azimuth: float, length: float,
+                   width: float) -> np.ndarray:
+    """A long arching ribbon leaf (3 vertices across, folded along the midrib)."""
+    s = np.linspace(0, 1, N_LEAF_SEG + 1)
+    elev0 = np.radians(rng.uniform(40, 75))
+    elev1 = np.radians(rng.uniform(-70, -10))
+    curve = rng.uniform(1.2, 2.2)
+    elev = elev0 + (elev1 - elev0) * s ** curve
+    az = azimuth + rng.normal(0, 0.15) * s
+    ds = length / N_LEAF_SEG
+    dirs = np.stack([np.cos(elev) * np.cos(az), np.cos(elev) * np.sin(az), np.sin(elev)], 1)
+    centre = attach + np.vstack([np.zeros(3), np.cumsum(dirs[:-1] * ds, axis=0)])
+    # across direction: horizontal, perpendicular to the leaf's heading, with a slow twist
+    side = np.stack([-np.sin(az), np.cos(az), np.zeros_like(az)], 1)
+    twist = rng.normal(0, 0.5) * s
+    up = np.cross(dirs, side)
+    side = np.cos(twist)[:, None] * side + np.sin(twist)[:, None] * up
+    up = np.cross(dirs, side)
+    w = width * (0.35 + 0.65 * np.sin(np.pi * np.clip(s, 0, 1) ** 0.55)) * (1 - s ** 5)
+    fold = np.radians(rng.uniform(8, 25))
+    half = w[:, None] / 2
+    lift = (half * np.sin(fold)) * up
+    v0 = centre - half * np.cos(fold) * side + lift
+    v2 = centre + half * np.cos(fold) * side + lift
+    return np.stack([v0, centre, v2], 1).reshape(-1, 3)
+
+
+def _add_plant(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, x: float, y: float,
+               with_panicle: bool) -> None:
+    pc, wc = cfg.panicle, cfg.world
+    tilt = np.radians(abs(rng.normal(0, pc.tilt_sd_deg)))
+    tdir = rng.uniform(0, 2 * np.pi)
+    axis = np.array([np.sin(tilt) * np.cos(tdir), np.sin(tilt) * np.sin(tdir), np.cos(tilt)])
+    c_h = max(0.3, rng.normal(pc.center_height_mean, pc.center_height_sd))
+    L_guess = 0.5 * (pc.length_min + pc.length_max)
+    top = np.array([x, y, c_h - 0.5 * L_guess * axis[2]]) - 0.5 * L_guess * np.array([axis[0], axis[1], 0])
+    ground = np.array([x + rng.normal(0, 0.02), y + rng.normal(0, 0.02), 0.0])
+    # stalk (a gently bent tube) up to the panicle base
+    n_pts = 7
+    s = np.linspace(0, 1, n_pts)
+    bend = rng.normal(0, 0.015, 3) * np.array([1, 1, 0])
+    pts = ground + s[:, None] * (top - ground) + np.sin(np.pi * s)[:, None] * bend
+    r0 = wc.stalk_radius * rng.uniform(0.85, 1.15)
+    radii = r0 * (1 - 0.55 * s)
+    v, f = polyline_tube(pts, radii, sides=10)
+    parts.stalk_f.append(f + parts.n_stalk_v)
+    parts.stalk_v.append(v)
+    sc = np.array([0.30, 0.32, 0.14]) * rng.uniform(0.8, 1.2) * (1 + rng.normal(0, 0.05, 3))
+    parts.stalk_c.append(np.tile(sc, (len(v), 1)))
+    parts.n_stalk_v += len(v)
+    if with_panicle:
+        _add_panicle(parts, rng, cfg, top, axis)
+    # leaves, alternating on two sides of the stalk, attached below the panicle
+    n_leaves = int(rng.integers(wc.leaves_min, wc.leaves_max + 1))
+    phi0 = rng.uniform(0, 2 * np.pi)
+    h_top = top[2] - rng.uniform(0.03, 0.10)
+    for k in range(n_leaves):
+        frac = (k + 0.5) / max(n_leaves, 1)
+        h = 0.25 + (h_top - 0.25) * frac ** 0.8
+        attach = ground + (h / max(top[2], 1e-6)) * (top - ground)
+        az = phi0 + np.pi * k + rng.normal(0, 0.5)
+        length = rng.uniform(wc.leaf_length_min, wc.leaf_length_max) * (0.75 if k == n_leaves - 1 else 1.0)
+        width = rng.uniform(wc.leaf_width_min, wc.leaf_width_max)
+        parts.leaves.append(_leaf_vertices(rng, attach, az, length, width))
+        parts.leaf_attach.append(attach)
+        lc = LEAF_COLORS[min(3, int(rng.integers(0, 3)) + (1 if frac < 0.35 and rng.uniform() < 0.5 else 0))]
+        parts.leaf_color.append(lc * rng.uniform(0.8, 1.2) * (1 + rng.normal(0, 0.06, 3)))
+
+
+def _soil_texture(rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Multi-scale value noise (tileable), mean ~1: multiplies the soil albedo."""
+    import cv2
+
+    tex = np.zeros((size, size), np.float32)
+    for cells, amp in ((8, 0.35), (32, 0.25), (128, 0.18), (256, 0.12)):
+        g = rng.normal(0, 1, (cells, cells)).astype(np.float32)
+        g = np.tile(g, (3, 3))
+        up = cv2.resize(g, (3 * size, 3 * size), interpolation=cv2.INTER_CUBIC)[size:2 * size, size:2 * size]
+        tex += amp * up
+    return np.clip(1.0 + tex, 0.4, 1.8).astype(np.float32)
+
+
+def _assemble(kind: str, cfg: SimConfig, parts: _Parts, rng: np.random.Generator, length: float,
+              has_soil: bool) -> World:
+    if parts.n_seeds:
+        xyz = np.vstack(parts.seeds_xyz)
+        seeds = SeedTable(np.arange(parts.n_seeds, dtype=np.int64), np.concatenate(parts.seeds_pid).astype(np.int64),
+                          xyz, np.vstack(parts.seeds_radii))
+        axes = np.concatenate(parts.seeds_axes)
+        albedo, glume = np.vstack(parts.seeds_albedo), np.vstack(parts.seeds_glume)
+        extent, ao = np.concatenate(parts.seeds_extent), np.concatenate(parts.seeds_ao)
+    else:
+        z = np.zeros((0, 3))
+        seeds = SeedTable(np.zeros(0, np.int64), np.zeros(0, np.int64), z, z)
+        axes, albedo, glume, extent, ao = np.zeros((0, 3, 3)), z, z, np.zeros(0), np.zeros(0)
+    lf, luv = ribbon_topology(N_LEAF_SEG)
+    n_leaf_v = 3 * (N_LEAF_SEG + 1)
+    leaves = np.stack(parts.leaves) if parts.leaves else np.zeros((0, n_leaf_v, 3))
+    attach = np.stack(parts.leaf_attach) if parts.leaf_attach else np.zeros((0, 3))
+    lcol = np.stack(parts.leaf_color) if parts.leaf_color else np.zeros((0, 3))
+    sv = np.vstack(parts.stalk_v) if parts.stalk_v else np.zeros((0, 3))
+    sf = np.vstack(parts.stalk_f) if parts.stalk_f else np.zeros((0, 3), np.int64)
+    scol = np.vstack(parts.stalk_c) if parts.stalk_c else np.zeros((0, 3))
+    return World(
+        kind=kind, cfg=cfg, length=length, seeds=seeds, seed_axes=axes, seed_albedo=albedo, glume_albedo=glume,
+        glume_extent=extent, seed_ao=ao, panicles=parts.panicles, leaf_vertices=leaves, leaf_triangles=lf,
+        leaf_uv=luv, leaf_attach=attach, leaf_color=np.clip(lcol, 0.01, 0.9),
+        leaf_sway=_sway_params(rng, len(attach), cfg.wind.leaf_amplitude_deg, cfg), stalk_vertices=sv,
+        stalk_triangles=sf, stalk_color=scol, soil_texture=_soil_texture(rng), has_soil=has_soil)
+
+
+def build_range_world(cfg: SimConfig, rng: np.random.Generator) -> World:
+    """A sorghum range: plants along the row line (y = 0) over x in [0, length], soil everywhere,
+    empty gaps beyond both ends, optionally a dim neighbouring row behind (y = +offset)."""
+    wc = cfg.world
+    parts = _Parts()
+    x = rng.uniform(0, wc.spacing_min)  # first plant near the start of the range
+    xs = []
+    while x <= wc.length:
+        xs.append(x)
+        x += rng.uniform(wc.spacing_min, wc.spacing_max)
+    for x in xs:
+        _add_plant(parts, rng, cfg, float(x), float(rng.normal(0, wc.row_jitter)), with_panicle=True)
+    if wc.background_row:
+        x = rng.uniform(-0.5, 0.0)
+        while x <= wc.length + 0.5:
+            _add_plant(parts, rng, cfg, float(x), wc.background_row_offset + float(rng.normal(0, wc.row_jitter)),
+                       with_panicle=False)
+            x += rng.uniform(wc.spacing_min, wc.spacing_max)
+    return _assemble("range", cfg, parts, rng, float(wc.length), has_soil=True)
+
+
+def build_panicle_world(cfg: SimConfig, rng: np.random.Generator) -> World:
+    """A single panicle: rachis along world +z, base at the origin, nothing else (no soil, no leaves)."""
+    parts = _Parts()
+    _add_panicle(parts, rng, cfg, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    return _assemble("panicle", cfg, parts, rng, 0.0, has_soil=False)
