@@ -52,8 +52,8 @@ class CameraModel:
     distortion: str = "radtan"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "K", np.asarray(self.K, float).reshape(3, 3))
-        object.__setattr__(self, "D", np.asarray(self.D, float).reshape(-1))
+        object.__setattr__(self, "K", np.ascontiguousarray(np.asarray(self.K, float).reshape(3, 3)))
+        object.__setattr__(self, "D", np.ascontiguousarray(np.asarray(self.D, float).reshape(-1)))
         if self.distortion not in DISTORTION_MODELS:
             raise ValueError(f"unknown distortion model {self.distortion!r}")
 
@@ -81,8 +81,8 @@ class StereoRig:
     warnings: list[str] = field(default_factory=list, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "R", np.asarray(self.R, float).reshape(3, 3))
-        object.__setattr__(self, "T", np.asarray(self.T, float).reshape(3))
+        object.__setattr__(self, "R", np.ascontiguousarray(np.asarray(self.R, float).reshape(3, 3)))
+        object.__setattr__(self, "T", np.ascontiguousarray(np.asarray(self.T, float).reshape(3)))
 
     @property
     def baseline(self) -> float:
@@ -214,7 +214,7 @@ def rectify(rig: StereoRig, alpha: float = 0.0) -> tuple[StereoCalib, RectifyMap
         return StereoCalib(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
                            baseline=float(-rig.T[0]), width=size[0], height=size[1]), None
     if rig.rect is not None:
-        R1, R2, P1, P2 = (np.asarray(a, float) for a in rig.rect)
+        R1, R2, P1, P2 = (np.ascontiguousarray(a, float) for a in rig.rect)
     else:
         try:
             if rig.left.distortion == "equidistant":
