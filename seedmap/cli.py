@@ -344,6 +344,9 @@ def _bench_print(records, out: Path) -> None:
         for m, s in per.items():
             def pct(v):
                 return "–" if v is None else f"{100 * v:.0f}%"
+            if not s["available"]:
+                t.add_row(m, "n/a", "n/a", "n/a", "n/a")
+                continue
             t.add_row(m, pct(s["mean_fraction"]), pct(s["mean_gt_fraction"]),
                       "–" if s["mean_ate_m"] is None else f"{s['mean_ate_m']:.3f}",
                       "n/a" if s["ms_per_frame"] is None else f"{s['ms_per_frame']:.0f}")
@@ -390,6 +393,30 @@ def benchmark_run(
         methods=None if methods is None else "[" + ",".join(m.strip() for m in methods.split(",") if m) + "]")
     records = run_benchmark(user_ranges(datasets), out, cfg)
     _bench_print(records, out)
+
+
+@benchmark_app.command("tune")
+def benchmark_tune(
+    dataset: Optional[Path] = typer.Argument(None, help="Training dataset (default: simulate the training range)."),
+    out: Path = typer.Option(Path("results/tune"), "--out", "-o", help="Results folder (resumes if present)."),
+    kinds: str = typer.Option("sift,surf,orb,akaze", "--kinds", help="Baselines to tune."),
+    workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Parallel processes (default 2)."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Tune the descriptor baselines (ratio, CLAHE, feature counts, ...) on ONE training range."""
+    from seedmap.eval.benchmark import FEATURE_KINDS, training_range, tune_baselines
+
+    cfg = _bench_config(config, set_, workers=workers, feature_tuning="{}")
+    ks = [k.strip().lower() for k in kinds.split(",") if k.strip()]
+    bad = [k for k in ks if k not in FEATURE_KINDS]
+    if bad:
+        raise SeedmapError(f"--kinds: unknown baseline {bad[0]!r} (known: {', '.join(FEATURE_KINDS)})")
+    ds = dataset if dataset is not None else training_range(cfg)
+    summary = tune_baselines(ds, out, ks, cfg)
+    for k, v in summary.items():
+        typer.echo(f"{k}: {v.get('note') or v['overrides'] or 'facts.md defaults are best'}")
+    typer.echo(f"details in {out / 'tune.md'}")
 
 
 # ================================================================================================

@@ -45,7 +45,7 @@ import numpy as np
 from pydantic import Field
 
 from seedmap.associate.features import KINDS as FEATURE_KINDS
-from seedmap.associate.features import FeatureMatcherConfig
+from seedmap.associate.features import TUNED, FeatureMatcherConfig
 from seedmap.config import ConfigModel, config_to_yaml, dump_config
 from seedmap.errors import ConfigError, InputError, SeedmapError
 from seedmap.eval.published import (
@@ -85,7 +85,15 @@ class BenchmarkConfig(ConfigModel):
     detectors: list[str] | None = Field(None, description="detectors for the seeds matcher (default: available)")
     slam_overrides: list[str] = Field(default_factory=list, description="SlamConfig key=value for every run")
     features: FeatureMatcherConfig = Field(default_factory=FeatureMatcherConfig)
+    feature_tuning: dict[str, dict[str, Any]] = Field(
+        default_factory=lambda: {k: dict(v) for k, v in TUNED.items()},
+        description="per-kind overrides of `features` (default: the values tuned on the training range)")
     workers: int = Field(2, ge=1, le=64)
+
+    def features_for(self, kind: str) -> FeatureMatcherConfig:
+        """The descriptor-baseline parameters used for ``kind`` (base + its tuned overrides)."""
+        upd = self.feature_tuning.get(kind, {})
+        return FeatureMatcherConfig.model_validate({**self.features.model_dump(), **upd})
 
 
 # ------------------------------------------------------------------------------------------------
@@ -143,9 +151,11 @@ class RunRecord:
     paper_index: int | None = None  # row of the published table (paper scenario only)
     stereo_matches: list[int] = field(default_factory=list)
     temporal_matches: list[int] = field(default_factory=list)
+    inlier_matches: list[int] = field(default_factory=list)
 
 
-CSV_FIELDS = [f.name for f in fields(RunRecord) if f.name not in ("stereo_matches", "temporal_matches")]
+_PER_FRAME = ("stereo_matches", "temporal_matches", "inlier_matches")
+CSV_FIELDS = [f.name for f in fields(RunRecord) if f.name not in _PER_FRAME]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -309,14 +319,35 @@ def slam_job(dataset: str, out: str, matcher: str, detector: str | None, slam_ov
 
 
 def _slam_config(overrides: Sequence[str], features: dict | None):
-    """SlamConfig from overrides; the descriptor-baseline parameters go where the pipeline reads them."""
+    """SlamConfig from overrides, plus a ``features`` section for the descriptor baselines.
+
+    ``make_matcher`` hands the SLAM config to ``FeatureMatcher``, which reads its ``gates`` (shared
+    with the seed matcher) and ``features``. When ``SlamConfig`` has no ``features`` field, a
+    subclass adds one, so the resolved ``config.yaml`` of every run records the parameters used.
+    """
     from seedmap.config import load_config
     from seedmap.slam.config import SlamConfig
 
-    base: dict[str, Any] = {}
-    if features is not None and "features" in SlamConfig.model_fields:
-        base["features"] = features
-    return load_config(SlamConfig, base=base, overrides=list(overrides))
+    if not features:
+        return load_config(SlamConfig, overrides=list(overrides))
+    cls = SlamConfig if "features" in SlamConfig.model_fields else _slam_config_with_features()
+    return load_config(cls, base={"features": features}, overrides=list(overrides))
+
+
+_SLAM_WITH_FEATURES: list[type] = []
+
+
+def _slam_config_with_features() -> type:
+    from seedmap.slam.config import SlamConfig
+
+    if not _SLAM_WITH_FEATURES:
+        class BaselineSlamConfig(SlamConfig):
+            """SlamConfig + the descriptor-baseline parameters (``features``)."""
+
+            features: FeatureMatcherConfig = Field(default_factory=FeatureMatcherConfig)
+
+        _SLAM_WITH_FEATURES.append(BaselineSlamConfig)
+    return _SLAM_WITH_FEATURES[0]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -334,23 +365,24 @@ def _num(x: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _read_matches_csv(path: Path) -> tuple[list[int], list[int]]:
-    """Stereo and temporal surviving-match counts per frame from ``matches_per_frame.csv``."""
+def _read_matches_csv(path: Path) -> tuple[list[int], list[int], list[int]]:
+    """Stereo, temporal and RANSAC-inlier match counts per frame from ``matches_per_frame.csv``."""
     if not path.is_file():
-        return [], []
+        return [], [], []
     rows = list(csv.DictReader(io.StringIO(path.read_text())))
     if not rows:
-        return [], []
+        return [], [], []
     cols = list(rows[0])
     sc = next((c for c in cols if "stereo" in c.lower()), None)
     tc = next((c for c in cols if "temporal" in c.lower()), None)
+    ic = next((c for c in cols if "inlier" in c.lower()), None)
 
     def col(c: str | None) -> list[int]:
         if c is None:
             return []
         return [int(float(r[c])) if r.get(c) not in (None, "") else 0 for r in rows]
 
-    return col(sc), col(tc)
+    return col(sc), col(tc), col(ic)
 
 
 def load_run(run_dir: Path, spec: RangeSpec, method: MethodSpec) -> RunRecord:
@@ -358,13 +390,14 @@ def load_run(run_dir: Path, spec: RangeSpec, method: MethodSpec) -> RunRecord:
     m = json.loads((run_dir / "metrics.json").read_text())
     ms = m.get("ms_per_frame")
     if isinstance(ms, dict):
-        total = _num(ms.get("total"))
+        # whole loop per frame (load + features + association + back-end); else the per-frame stages
+        total = _num(ms.get("total_per_frame", ms.get("total")))
         if total is None:
-            vals = [_num(v) for v in ms.values()]
+            vals = [_num(v) for k, v in ms.items() if "final" not in k]
             total = sum(v for v in vals if v is not None) if vals else None
     else:
         total = _num(ms)
-    stereo, temporal = _read_matches_csv(run_dir / "matches_per_frame.csv")
+    stereo, temporal, inliers = _read_matches_csv(run_dir / "matches_per_frame.csv")
     rec = RunRecord(
         scenario=spec.scenario,
         range_name=spec.name,
@@ -384,6 +417,7 @@ def load_run(run_dir: Path, spec: RangeSpec, method: MethodSpec) -> RunRecord:
         ms_per_frame=total,
         stereo_matches=stereo,
         temporal_matches=temporal,
+        inlier_matches=inliers,
     )
     if rec.mdm_fraction is None and rec.mdm_m is not None and rec.range_length_m:
         rec.mdm_fraction = rec.mdm_m / rec.range_length_m
@@ -458,12 +492,12 @@ def run_benchmark(
         1 for s in need_sim for m in per_range[s.name] if not m.unavailable
         and not (run_dir_of(out, s, m) / "metrics.json").is_file())
 
-    features = cfg.features.model_dump(mode="json")
-
     def slam_args(spec: RangeSpec, m: MethodSpec) -> tuple:
         rd = run_dir_of(out, spec, m)
         log = out / "logs" / f"{spec.scenario}-{spec.name}-{_safe(m.name)}.log"
-        return (str(spec.dataset), str(rd), m.matcher, m.detector, list(cfg.slam_overrides), features, str(log))
+        feats = (cfg.features_for(m.matcher).model_dump(mode="json", exclude={"gates"})
+                 if m.matcher in FEATURE_KINDS else {})
+        return (str(spec.dataset), str(rd), m.matcher, m.detector, list(cfg.slam_overrides), feats, str(log))
 
     bar = _Progress(progress, n_total)
     try:
@@ -629,6 +663,7 @@ def summarize(records: Sequence[RunRecord]) -> dict[str, dict[str, dict[str, flo
                 "mean_ate_m": _mean(r.ate_rmse_m for r in mr),
                 "ms_per_frame": _mean(r.ms_per_frame for r in mr),
                 "ranges": float(len(mr)),
+                "available": float(any(r.status != "n/a" for r in rs if r.method == m)),
             }
     return out
 
@@ -811,7 +846,8 @@ def bar_chart_png(records: Sequence[RunRecord]) -> bytes:
 
 
 def matches_plot_png(records: Sequence[RunRecord], scenario: str, range_name: str) -> bytes | None:
-    """Per-frame surviving stereo (solid) and temporal (dashed) matches of every method on one range."""
+    """Per-frame surviving matches of every method on one range: stereo (top), temporal and
+    RANSAC-verified temporal inliers (bottom); a dotted vertical line marks where a method got lost."""
     rs = [r for r in records if r.scenario == scenario and r.range_name == range_name and r.status == "ok"
           and (r.stereo_matches or r.temporal_matches)]
     if not rs:
@@ -821,23 +857,27 @@ def matches_plot_png(records: Sequence[RunRecord], scenario: str, range_name: st
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(9, 3.6))
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.6), sharex=True)
     cmap = plt.get_cmap("tab10")
     for j, r in enumerate(rs):
         c = cmap(j % 10)
         if r.stereo_matches:
-            ax.plot(np.arange(len(r.stereo_matches)), r.stereo_matches, "-", color=c, lw=1.2,
-                    label=f"{r.method} stereo")
+            ax1.plot(np.arange(len(r.stereo_matches)), r.stereo_matches, "-", color=c, lw=1.2, label=r.method)
         if r.temporal_matches:
-            ax.plot(np.arange(len(r.temporal_matches)), r.temporal_matches, "--", color=c, lw=1.0,
-                    label=f"{r.method} temporal")
+            ax2.plot(np.arange(len(r.temporal_matches)), r.temporal_matches, "-", color=c, lw=1.2,
+                     label=f"{r.method} temporal")
+        if r.inlier_matches:
+            ax2.plot(np.arange(len(r.inlier_matches)), r.inlier_matches, "--", color=c, lw=1.0,
+                     label=f"{r.method} inliers")
         if r.lost_frame is not None:
-            ax.axvline(int(r.lost_frame), color=c, lw=0.8, ls=":")
-    ax.set_yscale("symlog", linthresh=10)
-    ax.set_xlabel("frame")
-    ax.set_ylabel("surviving matches")
-    ax.set_title(f"{scenario} / {range_name}: matches per frame (dotted: lost)", fontsize=10)
-    ax.legend(fontsize=7, ncol=2)
+            for ax in (ax1, ax2):
+                ax.axvline(int(r.lost_frame), color=c, lw=0.8, ls=":")
+    for ax, what in ((ax1, "stereo matches"), (ax2, "temporal matches")):
+        ax.set_yscale("symlog", linthresh=10)
+        ax.set_ylabel(what)
+        ax.legend(fontsize=7, ncol=2)
+    ax2.set_xlabel("frame")
+    ax1.set_title(f"{scenario} / {range_name}: surviving matches per frame (dotted: lost)", fontsize=10)
     fig.tight_layout()
     data = _png_bytes(fig)
     plt.close(fig)
@@ -887,3 +927,180 @@ def write_reports(records: Sequence[RunRecord], out: str | Path, cfg: BenchmarkC
                 atomic_write_bytes(p, png)
                 written[f"matches/{p.name}"] = p
     return written
+
+
+# ------------------------------------------------------------------------------------------------
+# tuning the baselines on one training range
+# ------------------------------------------------------------------------------------------------
+
+#: The training range for tuning: not one of the evaluated ranges (own seed), default world.
+TRAIN_RANGE = {"preset": "paper1", "seed": 900, "overrides": ("world.length=2.0",)}
+
+#: One-factor-at-a-time variations around the facts.md defaults, per kind ("common" for all).
+TUNING_GRID: dict[str, list[dict[str, Any]]] = {
+    "common": [{"ratio": 0.7}, {"ratio": 0.75}, {"ratio": 0.85}, {"ratio": 0.9}, {"clahe": True},
+               {"gate_first": True}],
+    "sift": [{"sift_contrast_threshold": 0.02}, {"sift_contrast_threshold": 0.01}, {"sift_nfeatures": 3000}],
+    "orb": [{"orb_nfeatures": 2000}, {"orb_nfeatures": 5000}, {"orb_fast_threshold": 10},
+            {"orb_fast_threshold": 5}],
+    "akaze": [{"akaze_threshold": 0.0005}],
+    "surf": [{"surf_hessian": 200.0}],
+}
+
+
+@dataclass
+class TuneRow:
+    kind: str
+    label: str
+    overrides: dict[str, Any]
+    record: RunRecord
+
+    def score(self) -> tuple[float, float, float]:
+        """Ranking: GT-validated fraction, then fraction mapped, then lower ATE."""
+        r = self.record
+        if r.status != "ok":
+            return (-1.0, -1.0, -math.inf)
+        return (r.gt_mdm_fraction or 0.0, r.mdm_fraction or 0.0, -(r.ate_rmse_m if r.ate_rmse_m is not None
+                                                                     else math.inf))
+
+
+def _label(ov: dict[str, Any]) -> str:
+    return ",".join(f"{k}={v}" for k, v in ov.items()) or "defaults (facts.md)"
+
+
+def _run_many(jobs: list[tuple], workers: int, progress: bool, label: str) -> list[tuple[str, str]]:
+    """Run ``slam_job`` argument tuples, in a spawn pool when ``workers > 1``; results in order."""
+    bar = _Progress(progress, len(jobs))
+    out: list[tuple[str, str]] = [("error", "not run")] * len(jobs)
+    try:
+        bar.describe(label)
+        if workers <= 1:
+            for i, a in enumerate(jobs):
+                out[i] = slam_job(*a)
+                bar.advance()
+        else:
+            import multiprocessing as mp
+
+            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                     initializer=_worker_init) as pool:
+                futs = {pool.submit(slam_job, *a): i for i, a in enumerate(jobs)}
+                while futs:
+                    done, _ = wait(list(futs), return_when=FIRST_COMPLETED)
+                    for f in done:
+                        out[futs.pop(f)] = f.result()
+                        bar.advance()
+    finally:
+        bar.close()
+    return out
+
+
+def tune_baselines(
+    dataset: str | Path,
+    out: str | Path,
+    kinds: Sequence[str] = FEATURE_KINDS,
+    cfg: BenchmarkConfig | None = None,
+    progress: bool = True,
+) -> dict[str, dict[str, Any]]:
+    """Tune each descriptor baseline on ONE training dataset through the full SLAM pipeline.
+
+    Stage 1 runs the facts.md defaults and every single-parameter variation of
+    :data:`TUNING_GRID`; stage 2 combines the best value of every parameter that beat the
+    defaults. The winner (by GT-validated fraction mapped, then fraction mapped, then ATE) is
+    returned per kind as ``{"overrides", "default", "best", "runs"}`` and written to
+    ``tune.json`` / ``tune.csv`` / ``tune.md``; results resume like the benchmark.
+    """
+    from seedmap.associate.features import available_kinds
+
+    cfg = cfg or BenchmarkConfig(feature_tuning={})
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    dump_config(cfg, out / "config.yaml")
+    spec = RangeSpec(_safe(Path(dataset).resolve().name), "tune", Path(dataset))
+    avail = available_kinds()
+    rows: list[TuneRow] = []
+    summary: dict[str, dict[str, Any]] = {}
+
+    def run_stage(cands: list[tuple[str, dict[str, Any]]], tag: str) -> list[TuneRow]:
+        jobs, metas = [], []
+        done_rows: list[TuneRow] = []
+        for kind, ov in cands:
+            m = MethodSpec(kind, kind)
+            rd = out / "runs" / kind / _safe(_label(ov))[:120]
+            if (rd / "metrics.json").is_file():
+                done_rows.append(TuneRow(kind, _label(ov), ov, load_run(rd, spec, m)))
+                continue
+            feats = FeatureMatcherConfig.model_validate({**cfg.features.model_dump(), **ov})
+            jobs.append((str(dataset), str(rd), kind, None, list(cfg.slam_overrides),
+                         feats.model_dump(mode="json", exclude={"gates"}), str(out / "logs" / f"{rd.name}.log")))
+            metas.append((kind, ov, rd, m))
+        for (kind, ov, rd, m), (status, note) in zip(metas, _run_many(jobs, cfg.workers, progress, tag),
+                                                     strict=True):
+            rec = load_run(rd, spec, m) if status == "ok" and (rd / "metrics.json").is_file() else \
+                RunRecord("tune", spec.name, kind, status, note)
+            done_rows.append(TuneRow(kind, _label(ov), ov, rec))
+        return done_rows
+
+    live = [k for k in kinds if avail.get(k) is None]
+    stage1 = [(k, {}) for k in live] + [(k, ov) for k in live
+                                        for ov in TUNING_GRID["common"] + TUNING_GRID.get(k, [])]
+    rows += run_stage(stage1, "tuning: single-parameter variations")
+    stage2 = []
+    for k in live:
+        kr = [r for r in rows if r.kind == k]
+        base = next(r for r in kr if not r.overrides)
+        best_per_param: dict[str, TuneRow] = {}
+        for r in kr:
+            if r.overrides and r.score() > base.score():
+                (p,) = r.overrides
+                if p not in best_per_param or r.score() > best_per_param[p].score():
+                    best_per_param[p] = r
+        combo = {p: r.overrides[p] for p, r in best_per_param.items()}
+        if len(combo) > 1:
+            stage2.append((k, combo))
+    rows += run_stage(stage2, "tuning: combination of the improvements")
+    for k in kinds:
+        if avail.get(k) is not None:
+            summary[k] = {"overrides": {}, "note": avail[k]}
+            continue
+        kr = [r for r in rows if r.kind == k]
+        base = next(r for r in kr if not r.overrides)
+        best = max(kr, key=lambda r: r.score())
+        if best.score() <= base.score():
+            best = base
+        summary[k] = {
+            "overrides": best.overrides,
+            "default": {"mdm_fraction": base.record.mdm_fraction, "gt_mdm_fraction": base.record.gt_mdm_fraction,
+                        "ate_rmse_m": base.record.ate_rmse_m, "ms_per_frame": base.record.ms_per_frame},
+            "best": {"mdm_fraction": best.record.mdm_fraction, "gt_mdm_fraction": best.record.gt_mdm_fraction,
+                     "ate_rmse_m": best.record.ate_rmse_m, "ms_per_frame": best.record.ms_per_frame},
+        }
+    # files
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["kind", "setting", "status", "mdm_m", "mdm_fraction", "gt_mdm_m", "gt_mdm_fraction", "ate_rmse_m",
+                "ms_per_frame", "note"])
+    for r in rows:
+        rec = r.record
+        w.writerow([r.kind, r.label, rec.status] + ["" if v is None else v for v in (
+            rec.mdm_m, rec.mdm_fraction, rec.gt_mdm_m, rec.gt_mdm_fraction, rec.ate_rmse_m, rec.ms_per_frame)]
+            + [rec.note])
+    atomic_write_text(out / "tune.csv", buf.getvalue())
+    atomic_write_text(out / "tune.json", json.dumps(summary, indent=2, default=str))
+    md_rows = [[r.kind, r.label, _fmt_m(r.record, "mdm_m"), _fmt_m(r.record, "gt_mdm_m"),
+                _fmt_m(r.record, "ate_rmse_m", 3),
+                "" if r.record.ms_per_frame is None else f"{r.record.ms_per_frame:.0f}"] for r in rows]
+    md = (f"# Baseline tuning on {dataset}\n\nSelection: GT-validated fraction mapped, then fraction mapped, "
+          f"then ATE.\n\n" + _md_table(["kind", "setting", "MDM (m)", "GT-MDM (m)", "ATE (m)", "ms/frame"], md_rows)
+          + "\n**Chosen**\n\n" + "\n".join(f"- {k}: {v.get('note') or _label(v['overrides'])}"
+                                          for k, v in summary.items()) + "\n")
+    atomic_write_text(out / "tune.md", md)
+    return summary
+
+
+def training_range(cfg: BenchmarkConfig) -> Path:
+    """Simulate (or reuse) the tuning range: default world, own seed, 2 m (see :data:`TRAIN_RANGE`)."""
+    ov = tuple(cfg.sim_overrides) + tuple(TRAIN_RANGE["overrides"])
+    p = Path(cfg.data_dir) / _sim_cache_name(f"train-{TRAIN_RANGE['preset']}", int(TRAIN_RANGE["seed"]), ov)
+    if not _is_dataset(p):
+        simulate_job(str(TRAIN_RANGE["preset"]), int(TRAIN_RANGE["seed"]), ov, str(p))
+    return p
