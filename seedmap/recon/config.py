@@ -1,0 +1,92 @@
+"""Typed configuration of the panicle reconstruction pipeline (``seedmap reconstruct`` / ``count``)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from seedmap.config import ConfigModel
+
+
+class SgbmConfig(ConfigModel):
+    """OpenCV StereoSGBM parameters (pixels). ``min_disparity``/``num_disparities`` of ``None`` are
+    derived from the depth range of :class:`CloudConfig` and the calibration."""
+
+    min_disparity: int | None = None
+    num_disparities: int | None = Field(None, description="multiple of 16")
+    block_size: int = Field(3, ge=1)
+    p1_factor: int = Field(8, ge=0, description="P1 = p1_factor * channels * block_size^2")
+    p2_factor: int = Field(32, ge=0, description="P2 = p2_factor * channels * block_size^2")
+    uniqueness_ratio: int = Field(10, ge=0)
+    speckle_window_size: int = Field(100, ge=0)
+    speckle_range: int = Field(2, ge=0)
+    disp12_max_diff: int = Field(1)
+    mode: Literal["sgbm", "hh", "3way"] = "3way"
+    downscale: float = Field(1.0, gt=0, le=1, description="run SGBM on images scaled by this factor (speed)")
+    crop_to_lit: bool = Field(True, description="match only the bounding box of flash-lit pixels (speed; "
+                                                 "the unlit background has no depth anyway)")
+
+
+class CloudConfig(ConfigModel):
+    """Per-view point cloud: depth limits (m) and voxel size (m)."""
+
+    min_depth: float = Field(0.2, gt=0)
+    max_depth: float = Field(0.42, gt=0)
+    voxel_size: float = Field(0.001, gt=0)
+    pixel_step: int = Field(1, ge=1, description="use every n-th pixel (speed)")
+    min_intensity: int = Field(20, ge=0, le=255, description="drop pixels darker than this (unlit background, "
+                                                              "where SGBM matches noise)")
+
+
+class SeedCentreConfig(ConfigModel):
+    """3D seed centres from disparity inside each detected ellipse."""
+
+    min_valid_fraction: float = Field(0.3, ge=0, le=1, description="valid-disparity pixels needed in the ellipse")
+    shrink: float = Field(0.7, gt=0, le=1, description="use the central part of the ellipse (axis scale)")
+    surface_to_centre: bool = Field(True, description="push the visible-surface point back by the seed radius")
+
+
+class RegisterConfig(ConfigModel):
+    """Refining FK poses with ICP (Open3D) against the growing model."""
+
+    mode: Literal["fk", "full", "seeds"] = "seeds"
+    init: Literal["fk", "chain"] = Field(
+        "chain", description="initial guess: FK pose, or FK motion since the previous refined view")
+    full_method: Literal["point_to_point", "point_to_plane"] = "point_to_plane"
+    seeds_method: Literal["point_to_point", "point_to_plane"] = "point_to_point"
+    full_max_corr: list[float] = Field(default_factory=lambda: [0.004, 0.002, 0.001],
+                                       description="coarse-to-fine max correspondence distances, full clouds (m)")
+    seeds_max_corr: list[float] = Field(default_factory=lambda: [0.004, 0.002, 0.001],
+                                        description="coarse-to-fine max correspondence distances, seed centres (m)")
+    full_voxel: float = Field(0.002, gt=0, description="voxel of the clouds used for full-cloud ICP (m)")
+    normal_radius: float = Field(0.005, gt=0)
+    max_iterations: int = Field(50, ge=1)
+    min_seed_pairs: int = Field(8, ge=3, description="fewer seed correspondences -> keep the initial pose")
+    max_correction_m: float = Field(0.02, gt=0, description="larger ICP corrections are rejected (m)")
+    max_correction_deg: float = Field(5.0, gt=0)
+
+
+class CountConfig(ConfigModel):
+    """De-duplication of seed detections in 3D (see seedmap.recon.count for the method)."""
+
+    dbscan_eps: float = Field(0.004, gt=0, description="DBSCAN neighbourhood (m): separates seed groups/outliers")
+    dbscan_min_points: int = Field(2, ge=1)
+    bandwidth: float = Field(0.0008, gt=0, description="Gaussian density smoothing sigma (m)")
+    separation: float = Field(0.6, gt=0, description="min distance between two seed centres, in median diameters")
+    min_observations: int = Field(2, ge=1, description="views that must support a seed")
+
+
+class ReconConfig(ConfigModel):
+    """Whole reconstruction run (defaults suit the simulated UR5 scan at 0.3 m stand-off)."""
+
+    seed: int = 0
+    detector: str = Field("gt", description="detector name (gt = ground-truth ORACLE on simulated data)")
+    detector_overrides: list[str] = Field(default_factory=lambda: ["gt.min_area_px=12"],
+                                          description="key=value overrides of the detector config")
+    sgbm: SgbmConfig = Field(default_factory=SgbmConfig)
+    cloud: CloudConfig = Field(default_factory=CloudConfig)
+    seeds: SeedCentreConfig = Field(default_factory=SeedCentreConfig)
+    registration: RegisterConfig = Field(default_factory=RegisterConfig)
+    count: CountConfig = Field(default_factory=CountConfig)
+    min_view_points: int = Field(500, ge=0, description="views with fewer valid 3D points are skipped")

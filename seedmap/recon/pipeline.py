@@ -1,0 +1,411 @@
+"""The panicle reconstruction pipeline: arm scan dataset -> registered cloud, seed count, metrics.
+
+``prepare_scan`` does the per-view work once (SGBM, clouds, detections, 3D seed centres);
+``reconstruct`` registers the views in one mode, merges the cloud and counts seeds;
+``write_results`` writes the results folder (config.yaml, metrics.json, cloud.ply, seeds.csv,
+observations.csv, poses_tum.txt, poses_fk_tum.txt, report.md).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from seedmap.config import dump_config
+from seedmap.errors import InputError
+from seedmap.geometry import transform_points
+from seedmap.io.atomic import atomic_output_dir, atomic_write_text
+from seedmap.recon.config import ReconConfig
+from seedmap.recon.count import SeedCount, count_seeds
+from seedmap.recon.register import RegistrationResult, ViewGeometry, estimate_normals, register_views, voxel_down
+from seedmap.recon.stereo import (
+    SeedObservations,
+    ViewCloud,
+    compute_disparity,
+    detection_label_image,
+    disparity_to_cloud,
+    seed_centres,
+)
+from seedmap.records import StereoCalib
+
+JOINTS_FILE = "joints.csv"
+ARM_FILE = "arm.yaml"
+
+
+def load_fk_poses(root: Path, n_frames: int) -> np.ndarray:
+    """Nominal camera poses from ``joints.csv`` (measured joints) and ``arm.yaml`` (DH, base, hand-eye)."""
+    from seedmap.sim.arm import fk_camera_poses, read_joints_csv
+
+    root = Path(root)
+    views, q = read_joints_csv(root / JOINTS_FILE)
+    arm_path = root / ARM_FILE
+    if not arm_path.is_file():
+        raise InputError("arm description not found (needed with joints.csv for FK poses)", arm_path)
+    try:
+        arm = yaml.safe_load(arm_path.read_text())
+    except yaml.YAMLError:
+        raise InputError("arm description is not valid YAML", arm_path) from None
+    if not isinstance(arm, dict):
+        raise InputError("arm description must be a YAML mapping", arm_path)
+    if len(q) != n_frames or not np.array_equal(views, np.arange(n_frames)):
+        raise InputError(f"joints file has {len(q)} rows for views {views.min()}..{views.max()}, "
+                         f"but the dataset has {n_frames} frames", root / JOINTS_FILE)
+    try:
+        return fk_camera_poses(q, arm)
+    except InputError as e:
+        raise InputError(str(e), arm_path) from None
+
+
+@dataclass
+class PreparedView:
+    cloud: ViewCloud  # voxel-downsampled, left camera frame, with detection indices
+    seeds: SeedObservations
+    geometry: ViewGeometry
+    n_detections: int
+
+
+@dataclass
+class PreparedScan:
+    """Per-view results that do not depend on the registration mode."""
+
+    root: Path
+    calib: StereoCalib
+    T_fk: np.ndarray
+    views: list[PreparedView | None]
+    skipped: list[dict]
+    timestamps: np.ndarray
+    seconds_sgbm: np.ndarray
+    seconds_detect: np.ndarray
+    oracle: bool
+
+
+def _downsample_view(vc: ViewCloud, voxel: float) -> ViewCloud:
+    """Open3D voxel averaging of points and colours; detection index of the nearest original point."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    if len(vc) == 0:
+        return vc
+    p = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(vc.xyz))
+    p.colors = o3d.utility.Vector3dVector(vc.rgb.astype(np.float64) / 255.0)
+    d = p.voxel_down_sample(voxel)
+    xyz = np.asarray(d.points)
+    rgb = np.clip(np.asarray(d.colors) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    _, nn = cKDTree(vc.xyz).query(xyz)
+    return ViewCloud(xyz, rgb, vc.det[nn])
+
+
+def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> PreparedScan:
+    """SGBM, clouds, detections and 3D seed centres of every view of an arm scan dataset."""
+    from seedmap.detect import make_detector
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    root = Path(root)
+    ds = SeedmapDataset(root)
+    T_fk = load_fk_poses(root, len(ds))
+    det = make_detector(cfg.detector, dataset=ds, overrides=list(cfg.detector_overrides))
+    oracle = bool(getattr(det, "is_oracle", False))
+    views: list[PreparedView | None] = []
+    skipped: list[dict] = []
+    t_sgbm = np.zeros(len(ds))
+    t_det = np.zeros(len(ds))
+    it = range(len(ds))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(ds), desc="views (SGBM + seeds)", unit="view")
+    for i in it:
+        frame = ds[i]
+        t0 = time.perf_counter()
+        disp = compute_disparity(frame.left, frame.right, ds.calib, cfg.sgbm, cfg.cloud)
+        t_sgbm[i] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        sdet = det.detect_stereo(frame)
+        t_det[i] = time.perf_counter() - t0
+        labels = detection_label_image(disp.shape, sdet.left)
+        vc = disparity_to_cloud(disp, frame.left, ds.calib, cfg.cloud, labels)
+        if bar is not None:
+            bar.update(1)
+        if len(vc) < cfg.min_view_points:
+            skipped.append({"view": i, "reason": f"only {len(vc)} valid 3D points (min {cfg.min_view_points})"})
+            views.append(None)
+            continue
+        vc = _downsample_view(vc, cfg.cloud.voxel_size)
+        so = seed_centres(disp, sdet.left, ds.calib, cfg.seeds, cfg.cloud)
+        reg_xyz = voxel_down(vc.xyz, cfg.registration.full_voxel)
+        geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.xyz)
+        views.append(PreparedView(vc, so, geo, len(sdet.left)))
+    if bar is not None:
+        bar.close()
+    if all(v is None for v in views):
+        raise InputError("no view has valid disparity in the configured depth range "
+                         f"({cfg.cloud.min_depth}-{cfg.cloud.max_depth} m)", root)
+    return PreparedScan(root, ds.calib, T_fk, views, skipped, ds.timestamps.copy(), t_sgbm, t_det, oracle)
+
+
+@dataclass
+class Reconstruction:
+    mode: str
+    poses: np.ndarray
+    T_fk: np.ndarray
+    timestamps: np.ndarray
+    registration: RegistrationResult
+    cloud_xyz: np.ndarray
+    cloud_rgb: np.ndarray
+    cloud_label: np.ndarray  # counted seed index per point, -1 = none
+    obs_xyz: np.ndarray  # world seed observations
+    obs_view: np.ndarray
+    obs_diam: np.ndarray
+    obs_seed_id: np.ndarray
+    count: SeedCount
+    quality: dict
+    skipped: list[dict]
+    oracle: bool
+    seconds: dict = field(default_factory=dict)
+
+
+def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) -> Reconstruction:
+    """Register, merge and count in the mode ``cfg.registration.mode``."""
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    from seedmap.recon.quality import quality_scores
+
+    geoms = [v.geometry if v is not None else None for v in prep.views]
+    t0 = time.perf_counter()
+    reg = register_views(geoms, prep.T_fk, cfg.registration)
+    t_reg = time.perf_counter() - t0
+    # seed observations in the world
+    ox, ov, od, oid, odet = [], [], [], [], []
+    for k, v in enumerate(prep.views):
+        if v is None or len(v.seeds) == 0:
+            continue
+        ox.append(transform_points(reg.poses[k], v.seeds.xyz))
+        ov.append(np.full(len(v.seeds), k))
+        od.append(v.seeds.diameter)
+        oid.append(v.seeds.seed_id)
+        odet.append(v.seeds.det)
+    cat = (lambda a, shape: np.concatenate(a) if a else np.zeros(shape))
+    obs_xyz, obs_view = cat(ox, (0, 3)), cat(ov, (0,)).astype(np.int64)
+    obs_diam, obs_id, obs_det = cat(od, (0,)), cat(oid, (0,)).astype(np.int64), cat(odet, (0,)).astype(np.int64)
+    t0 = time.perf_counter()
+    cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count)
+    t_count = time.perf_counter() - t0
+    # merged cloud; per-point label = counted seed of the detection the pixel belonged to
+    px, pc, pl = [], [], []
+    for k, v in enumerate(prep.views):
+        if v is None:
+            continue
+        lab = np.full(len(v.cloud), -1, np.int64)
+        sel = obs_view == k
+        if sel.any():
+            lut = np.full(int(max(v.cloud.det.max(initial=-1), obs_det[sel].max())) + 2, -1, np.int64)
+            lut[obs_det[sel]] = cnt.assignment[sel]
+            has = v.cloud.det >= 0
+            lab[has] = lut[np.minimum(v.cloud.det[has], len(lut) - 1)]
+        px.append(transform_points(reg.poses[k], v.cloud.xyz))
+        pc.append(v.cloud.rgb)
+        pl.append(lab)
+    all_xyz, all_rgb, all_lab = np.concatenate(px), np.concatenate(pc), np.concatenate(pl)
+    p = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(all_xyz))
+    p.colors = o3d.utility.Vector3dVector(all_rgb.astype(np.float64) / 255.0)
+    d = p.voxel_down_sample(cfg.cloud.voxel_size)
+    cxyz = np.asarray(d.points)
+    crgb = np.clip(np.asarray(d.colors) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    _, nn = cKDTree(all_xyz).query(cxyz)
+    clab = all_lab[nn]
+    q = quality_scores(cxyz, cnt, seed=cfg.seed)
+    return Reconstruction(
+        mode=cfg.registration.mode, poses=reg.poses, T_fk=prep.T_fk, timestamps=prep.timestamps, registration=reg,
+        cloud_xyz=cxyz, cloud_rgb=crgb, cloud_label=clab, obs_xyz=obs_xyz, obs_view=obs_view, obs_diam=obs_diam,
+        obs_seed_id=obs_id, count=cnt, quality=q, skipped=prep.skipped, oracle=prep.oracle,
+        seconds={"registration_total": t_reg, "count": t_count,
+                 "sgbm_per_view": float(np.mean(prep.seconds_sgbm)),
+                 "icp_per_view": float(np.mean(reg.seconds[1:])) if len(reg.seconds) > 1 else 0.0})
+
+
+# ------------------------------------------------------------------------------------------------
+# writing
+# ------------------------------------------------------------------------------------------------
+
+
+def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray, label: np.ndarray) -> None:
+    """Binary PLY via Open3D's tensor API with an extra per-point ``seed_label`` (int32, -1 = none)."""
+    import open3d as o3d
+
+    pc = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(xyz, np.float32)))
+    pc.point.colors = o3d.core.Tensor(np.ascontiguousarray(rgb, np.float32) / 255.0)
+    pc.point.seed_label = o3d.core.Tensor(np.ascontiguousarray(label.reshape(-1, 1), np.int32))
+    if not o3d.t.io.write_point_cloud(str(path), pc):
+        raise InputError("could not write the point cloud", path)
+
+
+def _csv(header: str, rows: np.ndarray, fmt: str) -> str:
+    buf = io.StringIO()
+    buf.write(header + "\n")
+    if len(rows):
+        np.savetxt(buf, rows, fmt=fmt, delimiter=",")
+    return buf.getvalue()
+
+
+def seeds_csv_text(cnt: SeedCount) -> str:
+    rows = np.column_stack([np.arange(cnt.count), cnt.xyz, cnt.diameter, cnt.n_views, cnt.spread]) \
+        if cnt.count else np.zeros((0, 7))
+    return _csv("seed,x,y,z,diameter_m,n_views,spread_m", rows, "%.6g")
+
+
+def write_results(rec: Reconstruction, out: Path, cfg: ReconConfig, metrics: dict, overwrite: bool = False) -> Path:
+    """Write the results folder atomically."""
+    from seedmap.io.trajectory import write_tum
+    from seedmap.records import Trajectory
+
+    with atomic_output_dir(Path(out), overwrite=overwrite) as tmp:
+        dump_config(cfg, tmp / "config.yaml")
+        write_ply(tmp / "cloud.ply", rec.cloud_xyz, rec.cloud_rgb, rec.cloud_label)
+        atomic_write_text(tmp / "seeds.csv", seeds_csv_text(rec.count))
+        obs = np.column_stack([rec.obs_view, rec.obs_xyz, rec.obs_diam, rec.obs_seed_id, rec.count.assignment]) \
+            if len(rec.obs_xyz) else np.zeros((0, 7))
+        atomic_write_text(tmp / "observations.csv",
+                          _csv("view,x,y,z,diameter_m,gt_seed_id,seed", obs, "%.7g"))
+        write_tum(tmp / "poses_tum.txt", Trajectory(rec.timestamps, rec.poses))
+        write_tum(tmp / "poses_fk_tum.txt", Trajectory(rec.timestamps, rec.T_fk))
+        atomic_write_text(tmp / "metrics.json", json.dumps(metrics, indent=2, default=_jsonable))
+        atomic_write_text(tmp / "report.md", report_markdown(rec, metrics))
+    return Path(out)
+
+
+def _jsonable(x):
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
+def report_markdown(rec: Reconstruction, metrics: dict) -> str:
+    lines = [f"# Panicle reconstruction ({rec.mode})", ""]
+    if rec.oracle:
+        lines += ["**Detections come from the ground-truth ORACLE (`gt` detector) -- simulation only.**", ""]
+    lines += [f"- views: {len(rec.poses)} ({len(rec.skipped)} skipped)",
+              f"- cloud points: {len(rec.cloud_xyz)}",
+              f"- seed count: **{rec.count.count}** (from {len(rec.obs_xyz)} per-view detections)",
+              f"- GT-free quality: seed spread {rec.quality['seed_spread_mm']:.3f} mm, "
+              f"surface thickness {rec.quality['surface_thickness_mm']:.3f} mm", ""]
+    gt = metrics.get("gt")
+    if gt:
+        lines += ["## Against ground truth", "", "| metric | value |", "|---|---|"]
+        for k, v in gt.items():
+            if isinstance(v, (int, float)):
+                lines.append(f"| {k} | {v:.4g} |")
+        lines.append("")
+    for s in rec.skipped:
+        lines.append(f"- skipped view {s['view']}: {s['reason']}")
+    return "\n".join(lines) + "\n"
+
+
+def base_metrics(rec: Reconstruction) -> dict:
+    """GT-free metrics of a reconstruction."""
+    reg = rec.registration
+    return {
+        "mode": rec.mode,
+        "oracle_detector": rec.oracle,
+        "views": len(rec.poses),
+        "skipped_views": rec.skipped,
+        "registered_views": int(reg.accepted.sum()),
+        "registration_notes": reg.notes,
+        "seed_count": rec.count.count,
+        "detections_total": int(len(rec.obs_xyz)),
+        "cloud_points": int(len(rec.cloud_xyz)),
+        "quality": rec.quality,
+        "seconds": rec.seconds,
+    }
+
+
+def gt_visible_seeds(root: Path, min_area_px: int, min_views: int = 1) -> np.ndarray:
+    """GT ids of the seeds a perfect detector could count: centre visible with at least
+    ``min_area_px`` visible pixels in the LEFT image of at least ``min_views`` views."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = SeedmapDataset(root)
+    ids = []
+    for i in range(len(ds)):
+        inst = ds.gt_instances(i, "left")
+        ids.append(inst.seed_id[inst.center_visible & (inst.area >= min_area_px)])
+    if not ids:
+        return np.zeros(0, np.int64)
+    u, c = np.unique(np.concatenate(ids), return_counts=True)
+    return u[c >= min_views]
+
+
+def gt_metrics(rec: Reconstruction, root: Path, min_area_px: int) -> dict | None:
+    """Pose, cloud and count errors against the simulator's ground truth (None without GT)."""
+    from seedmap.eval.recon_metrics import evaluate_reconstruction
+    from seedmap.sim.panicle_scan import gt_rest_poses, gt_surface_points
+
+    ref = gt_rest_poses(root)
+    surf = gt_surface_points(root)
+    if ref is None or surf is None:
+        return None
+    vis = gt_visible_seeds(root, min_area_px)
+    out = evaluate_reconstruction(rec.poses, rec.cloud_xyz, rec.count.count, ref, surf, len(vis), fk_poses=rec.T_fk)
+    out["gt_visible_seeds_definition"] = f"centre visible and >= {min_area_px} px in >= 1 left view"
+    return out
+
+
+def run_reconstruct(dataset: str | Path, out: str | Path, cfg: ReconConfig, overwrite: bool = False,
+                    progress: bool = True) -> tuple[Path, dict]:
+    """``seedmap reconstruct``: prepare, register (``cfg.registration.mode``), count, evaluate, write."""
+    from seedmap.io.atomic import check_output_parent
+
+    out = Path(out)
+    check_output_parent(out)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise InputError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+    prep = prepare_scan(dataset, cfg, progress=progress)
+    rec = reconstruct(prep, cfg)
+    metrics = base_metrics(rec)
+    metrics["dataset"] = str(Path(dataset))
+    gt = gt_metrics(rec, Path(dataset), _min_area(cfg))
+    if gt is not None:
+        metrics["gt"] = gt
+    write_results(rec, out, cfg, metrics, overwrite=overwrite)
+    return out, metrics
+
+
+def _min_area(cfg: ReconConfig) -> int:
+    """The oracle's min-area override (keeps the GT-visible definition consistent with the detector)."""
+    for o in cfg.detector_overrides:
+        if o.replace(" ", "").startswith("gt.min_area_px="):
+            return int(float(o.split("=", 1)[1]))
+    return 3
+
+
+def read_observations(results: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``observations.csv`` of a results folder -> (world centres, views, diameters)."""
+    p = Path(results) / "observations.csv"
+    if not Path(results).is_dir():
+        raise InputError("results folder not found", results)
+    if not p.is_file():
+        raise InputError("observations.csv not found (is this a `seedmap reconstruct` results folder?)", p)
+    try:
+        a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError:
+        raise InputError("observations.csv is malformed", p) from None
+    if a.size == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
+    if a.shape[1] < 5:
+        raise InputError(f"observations.csv needs >= 5 columns, found {a.shape[1]}", p)
+    return a[:, 1:4], a[:, 0].astype(np.int64), a[:, 4]
+
+
+def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
+    """``seedmap count``: de-duplicate the stored per-view seed observations again with ``cfg.count``."""
+    xyz, view, diam = read_observations(results)
+    return count_seeds(xyz, view, diam, cfg.count)

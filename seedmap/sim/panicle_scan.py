@@ -1,0 +1,131 @@
+"""``seedmap simulate panicle``: a UR5 arm scan of one simulated panicle, written as a seedmap dataset.
+
+Besides the standard layout (seedmap.io.seedmap_dataset) the folder holds
+
+* ``joints.csv``          commanded and measured joint angles per view (rad)
+* ``arm.yaml``            the nominal arm description (DH table, base pose, hand-eye, capture config)
+* ``gt/poses_tum.txt``    TRUE left-camera poses T_world_cam
+* ``gt/poses_fk_tum.txt`` nominal FK poses (what the robot believes)
+* ``gt/panicle_poses.csv`` the panicle sway D per view (p_world = D p_rest)
+* ``gt/surface_points.npy`` points sampled on the seed ellipsoids at rest (GT surface, m)
+* ``gt/scan.yaml``        the generator config (scan + simulator)
+
+Panicle sway is applied by rendering the panicle at rest from ``D^-1 T_world_cam`` (exactly the
+view of a camera at ``T_world_cam`` looking at the swayed panicle; the scene holds nothing else),
+so the simulator's own wind is switched off for these scans.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import Field
+
+from seedmap.config import ConfigModel, config_to_yaml
+from seedmap.errors import InputError
+from seedmap.geometry import invert, pose_to_tum
+from seedmap.sim.arm import ArmConfig, arm_yaml_dict, simulate_capture, write_joints_csv
+from seedmap.sim.config import CameraConfig, SimConfig, WindConfig
+
+
+def _default_sim() -> SimConfig:
+    return SimConfig(camera=CameraConfig(scale=0.25), wind=WindConfig(enabled=False))
+
+
+class PanicleScanConfig(ConfigModel):
+    """An arm scan: one ``seed`` drives the panicle, the arm errors and the image noise."""
+
+    seed: int = 0
+    arm: ArmConfig = Field(default_factory=ArmConfig)
+    sim: SimConfig = Field(default_factory=_default_sim)
+    surface_samples_per_seed: int = Field(60, ge=4)
+
+
+def seed_surface_points(world, per_seed: int, rng: np.random.Generator) -> np.ndarray:
+    """Points uniformly-ish on every seed ellipsoid at rest (world frame, m) -- the GT surface."""
+    c = world.seeds.xyz
+    r = world.seeds.radii
+    v = rng.normal(size=(len(c), per_seed, 3))
+    v /= np.linalg.norm(v, axis=2, keepdims=True)
+    local = v * r[:, None, :]
+    return (np.einsum("nij,nkj->nki", world.seed_axes, local) + c[:, None, :]).reshape(-1, 3).astype(np.float32)
+
+
+def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False, progress: bool = True) -> Path:
+    """Build one panicle, plan and 'execute' the arm scan, render every view and write the dataset."""
+    from seedmap.io.atomic import atomic_output_dir, atomic_write_bytes, atomic_write_text, check_output_parent
+    from seedmap.io.seedmap_dataset import DatasetWriter
+    from seedmap.io.trajectory import write_tum
+    from seedmap.records import Trajectory
+    from seedmap.sim.render import render_stereo
+    from seedmap.sim.world import build_panicle_world
+
+    out = Path(out)
+    check_output_parent(out)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise InputError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+    sim = cfg.sim.model_copy(update={"seed": cfg.seed})
+    ss = np.random.SeedSequence(cfg.seed)
+    s_world, s_arm, s_surf, s_frames = ss.spawn(4)
+    world = build_panicle_world(sim, np.random.default_rng(s_world))
+    z = world.seeds.xyz[:, 2]
+    heights = cfg.arm.heights if cfg.arm.heights else [float(0.5 * (z.min() + z.max()))]
+    cap = simulate_capture(cfg.arm, heights, np.random.default_rng(s_arm))
+    calib = sim.camera.calib()
+    frame_seeds = s_frames.spawn(cfg.arm.views)
+    T_render = invert(cap.panicle_motion) @ cap.T_world_cam_true
+    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+        w = DatasetWriter(tmp)
+        w.write_calib(calib)
+        w.write_times(cap.times)
+        w.write_gt_poses(Trajectory(cap.times, cap.T_world_cam_true))
+        write_tum(tmp / "gt" / "poses_fk_tum.txt", Trajectory(cap.times, cap.T_world_cam_fk))
+        w.write_gt_seeds(world.seeds)
+        w.write_gt_panicle_poses(np.arange(cfg.arm.views), np.zeros(cfg.arm.views, int), pose_to_tum(cap.panicle_motion))
+        w.write_gt_config(config_to_yaml(sim))
+        atomic_write_text(tmp / "gt" / "scan.yaml", config_to_yaml(cfg))
+        buf = io.BytesIO()
+        np.save(buf, seed_surface_points(world, cfg.surface_samples_per_seed, np.random.default_rng(s_surf)))
+        atomic_write_bytes(tmp / "gt" / "surface_points.npy", buf.getvalue())
+        write_joints_csv(tmp / "joints.csv", cap)
+        atomic_write_text(tmp / "arm.yaml", yaml.safe_dump(arm_yaml_dict(cap, cfg.arm), sort_keys=False))
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=cfg.arm.views, desc=f"render {out.name}", unit="view")
+        for k in range(cfg.arm.views):
+            r = render_stereo(world, T_render[k], calib, sim, np.random.default_rng(frame_seeds[k]), 0.0)
+            w.write_frame(k, r.left, r.right)
+            w.write_gt_instances(k, "left", r.left_labels, r.left_instances)
+            w.write_gt_instances(k, "right", r.right_labels, r.right_instances)
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+    return out
+
+
+def gt_rest_poses(root: Path) -> np.ndarray | None:
+    """True camera poses in the panicle rest frame (``D^-1 T_world_cam``) of an arm scan dataset."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = SeedmapDataset(root)
+    tr = ds.gt_trajectory()
+    if tr is None:
+        return None
+    D = ds.gt_panicle_poses()
+    out = tr.poses.copy()
+    for k in range(len(out)):
+        Dk = D.get(k, {}).get(0)
+        if Dk is not None:
+            out[k] = invert(Dk) @ out[k]
+    return out
+
+
+def gt_surface_points(root: Path) -> np.ndarray | None:
+    p = Path(root) / "gt" / "surface_points.npy"
+    return np.load(p).astype(np.float64) if p.is_file() else None
