@@ -424,6 +424,108 @@ def benchmark_tune(
 # ================================================================================================
 
 
+@simulate_app.command("panicle")
+def simulate_panicle_cmd(
+    out: Path = typer.Option(..., "--out", "-o", help="Dataset folder to create."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (panicle, arm errors, image noise)."),
+    views: Optional[int] = typer.Option(None, "--views", help="Number of views around the panicle (default 36)."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset folder."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Simulate a UR5 arm circling one panicle with the stereo camera (images, joints.csv, arm.yaml, GT)."""
+    from seedmap.config import load_config
+    from seedmap.sim.panicle_scan import PanicleScanConfig, simulate_panicle
+
+    extra = list(set_ or [])
+    if seed is not None:
+        extra.append(f"seed={seed}")
+    if views is not None:
+        extra.append(f"arm.views={views}")
+    cfg = load_config(PanicleScanConfig, config, extra)
+    path = simulate_panicle(cfg, out, overwrite=overwrite, progress=not quiet)
+    typer.echo(f"wrote {path}")
+
+
+@app.command("reconstruct")
+def reconstruct_cmd(
+    dataset: Path = typer.Argument(..., help="Arm scan dataset (seedmap layout + joints.csv + arm.yaml)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Results folder to create."),
+    register: Optional[str] = typer.Option(None, "--register", help="fk | full | seeds (default seeds)."),
+    detector: Optional[str] = typer.Option(None, "--detector", help="Detector name (default gt = ORACLE)."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing results folder."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """3D model of one panicle from an arm scan: SGBM clouds, FK + ICP registration, seed count."""
+    from seedmap.config import load_config
+    from seedmap.errors import ConfigError
+    from seedmap.recon.config import ReconConfig
+    from seedmap.recon.pipeline import run_reconstruct
+
+    extra = list(set_ or [])
+    if register is not None:
+        if register not in ("fk", "full", "seeds"):
+            raise ConfigError(f"--register must be fk, full or seeds, got {register!r}")
+        extra.append(f"registration.mode={register}")
+    if detector is not None:
+        extra.append(f"detector={detector}")
+    cfg = load_config(ReconConfig, config, extra)
+    path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet)
+    q = m["quality"]
+    typer.echo(f"{m['mode']}: {m['seed_count']} seeds, {m['cloud_points']} points, "
+               f"seed spread {q['seed_spread_mm']:.2f} mm (GT-free)")
+    if "gt" in m:
+        g = m["gt"]
+        typer.echo(f"vs GT: pose {g['pose_trans_mm_mean']:.2f} mm / {g['pose_rot_deg_mean']:.3f} deg, cloud "
+                   f"median {g['cloud_dist_mm_median']:.2f} mm p90 {g['cloud_dist_mm_p90']:.2f} mm, "
+                   f"count {g['count']} vs {g['count_gt']} ({g['count_ape_pct']:.1f} %)")
+    typer.echo(f"wrote {path}")
+
+
+@app.command("count")
+def count_cmd(
+    results: Path = typer.Argument(..., help="A `seedmap reconstruct` results folder."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write seeds.csv + count.json to this new folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out folder."),
+) -> None:
+    """Seed count of a reconstruction (re-runs the 3D de-duplication, e.g. with --set count.bandwidth=...)."""
+    import json
+
+    import numpy as np
+    from rich.console import Console
+    from rich.table import Table
+
+    from seedmap.config import dump_config, load_config
+    from seedmap.errors import InputError
+    from seedmap.io.atomic import atomic_output_dir, atomic_write_text
+    from seedmap.recon.config import ReconConfig
+    from seedmap.recon.pipeline import recount, seeds_csv_text
+
+    base_cfg = results / "config.yaml"
+    if config is None and not base_cfg.is_file():
+        raise InputError("config.yaml not found (is this a `seedmap reconstruct` results folder?)", base_cfg)
+    cfg = load_config(ReconConfig, config if config is not None else base_cfg, list(set_ or []))
+    c = recount(results, cfg)
+    t = Table(title=f"seed count: {results}")
+    for col in ("seeds", "median diameter (mm)", "median views/seed", "median spread (mm)"):
+        t.add_column(col)
+    t.add_row(str(c.count), f"{np.median(c.diameter) * 1000:.2f}" if c.count else "-",
+              f"{np.median(c.n_views):.0f}" if c.count else "-",
+              f"{np.median(c.spread) * 1000:.2f}" if c.count else "-")
+    Console().print(t)
+    if out is not None:
+        with atomic_output_dir(out, overwrite=overwrite) as tmp:
+            dump_config(cfg, tmp / "config.yaml")
+            atomic_write_text(tmp / "seeds.csv", seeds_csv_text(c))
+            atomic_write_text(tmp / "count.json", json.dumps({"results": str(results), "seed_count": c.count}))
+        typer.echo(f"wrote {out}")
+
+
 # ================================================================================================
 # bag-info / batch (seedmap.io, seedmap.viz)
 # ================================================================================================
