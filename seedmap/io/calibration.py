@@ -281,18 +281,22 @@ def _fs_node_to_py(node: cv2.FileNode):
 def read_opencv_yaml(path: Path) -> dict:
     """Read an OpenCV FileStorage YAML (``%YAML:1.0`` header, ``!!opencv-matrix``) into plain Python."""
     path = Path(path)
-    try:
+    def why(e: Exception) -> str:
+        lines = str(e).strip().splitlines()
+        return (lines[-1] if lines else type(e).__name__)[:120]
+
+    try:  # OpenCV raises cv2.error, and SystemError from its bindings on some malformed files
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as e:
-        msg = str(e).strip().splitlines()[-1] if str(e).strip() else "parse error"
-        raise InputError(f"not a readable OpenCV YAML file ({msg[:120]})", path) from None
+    except Exception as e:
+        raise InputError(f"not a readable OpenCV YAML file ({why(e)})", path) from None
     try:
         if not fs.isOpened():
             raise InputError("not a readable OpenCV YAML file", path)
-        root = fs.root()
-        out = _fs_node_to_py(root)
-    except cv2.error as e:
-        raise InputError(f"not a readable OpenCV YAML file ({str(e).strip()[:120]})", path) from None
+        out = _fs_node_to_py(fs.root())
+    except InputError:
+        raise
+    except Exception as e:
+        raise InputError(f"not a readable OpenCV YAML file ({why(e)})", path) from None
     finally:
         fs.release()
     if not isinstance(out, dict):
@@ -733,7 +737,7 @@ def load_rig(path: str | Path, right: str | Path | None = None,
         if rp is None:
             raise InputError("EuRoC sensor.yaml of one camera: give the other camera's sensor.yaml too", path)
         return parse_euroc_pair(d, read_yaml_any(rp), path, rp)[0]
-    if any(k.startswith(("Camera.", "Camera1.", "LEFT.")) for k in d):
+    if any(isinstance(k, str) and k.startswith(("Camera.", "Camera1.", "LEFT.")) for k in d):
         return parse_opencv_settings(d, path)
     raise InputError("unrecognised calibration format (seedmap calib.yaml, ROS camera_info, Kalibr camchain, "
                      "EuRoC sensor.yaml, ORB-SLAM settings, KITTI calib.txt or GTSAM fx fy skew u0 v0 b)", path)

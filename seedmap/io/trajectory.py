@@ -26,7 +26,11 @@ def read_tum(path: str | Path) -> Trajectory:
     if not path.is_file():
         raise InputError("trajectory file not found", path)
     rows = []
-    for i, line in enumerate(path.read_text().splitlines(), 1):
+    try:
+        text = path.read_text()
+    except (UnicodeDecodeError, OSError):
+        raise InputError("trajectory file is not text", path) from None
+    for i, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
@@ -34,9 +38,14 @@ def read_tum(path: str | Path) -> Trajectory:
         if len(parts) != 8:
             raise InputError(f"line {i}: TUM rows need 8 numbers (t tx ty tz qx qy qz qw), got {len(parts)}", path)
         try:
-            rows.append([float(x) for x in parts])
+            row = [float(x) for x in parts]
         except ValueError:
             raise InputError(f"line {i}: not a number", path) from None
+        if not np.all(np.isfinite(row)):
+            raise InputError(f"line {i}: NaN or inf in a pose", path)
+        if np.linalg.norm(row[4:8]) < 1e-12:
+            raise InputError(f"line {i}: zero quaternion (qx qy qz qw must be a rotation)", path)
+        rows.append(row)
     a = np.asarray(rows, float).reshape(-1, 8)
     return Trajectory(a[:, 0], tum_to_pose(a[:, 1:]) if len(a) else np.zeros((0, 4, 4)))
 
@@ -52,12 +61,25 @@ def read_kitti(path: str | Path, timestamps: np.ndarray | None = None) -> Trajec
     if not path.is_file():
         raise InputError("trajectory file not found", path)
     try:
+        empty = not path.read_text().strip()
+    except (UnicodeDecodeError, OSError):
+        raise InputError("trajectory file is not text", path) from None
+    if empty:
+        if timestamps is not None and len(np.asarray(timestamps).reshape(-1)):
+            raise InputError(f"KITTI pose file is empty but {len(np.asarray(timestamps).reshape(-1))} timestamps "
+                             "were given", path)
+        return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+    try:
         a = np.loadtxt(path, ndmin=2)
     except ValueError as e:
-        raise InputError(f"not a KITTI pose file ({e})", path) from None
+        raise InputError(f"not a KITTI pose file ({str(e).splitlines()[0][:100]})", path) from None
     if a.shape[1] != 12:
         raise InputError(f"KITTI rows need 12 numbers, got {a.shape[1]}", path)
+    if not np.all(np.isfinite(a)):
+        raise InputError("NaN or inf in a KITTI pose", path)
     T = np.tile(np.eye(4), (len(a), 1, 1))
     T[:, :3, :4] = a.reshape(-1, 3, 4)
-    ts = np.arange(len(a), dtype=float) if timestamps is None else np.asarray(timestamps, float)
+    ts = np.arange(len(a), dtype=float) if timestamps is None else np.asarray(timestamps, float).reshape(-1)
+    if len(ts) != len(a):
+        raise InputError(f"{len(a)} poses but {len(ts)} timestamps", path)
     return Trajectory(ts, T)
