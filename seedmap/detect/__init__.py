@@ -21,7 +21,7 @@ from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses, fit_ellipse_mask, fit_ellipses_labels
 from seedmap.detect.fast import FastDetector
 from seedmap.detect.gt import GtDetector
-from seedmap.detect import learned_stub as _learned  # noqa: F401  (registers frcnn-pix2pix lazily)
+from seedmap.detect import learned as _learned  # noqa: F401  (registers frcnn-pix2pix; no torch import)
 
 __all__ = [
     "DetectConfig",

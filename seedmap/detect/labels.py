@@ -1,0 +1,203 @@
+"""Labelled images for training: simulated seedmap datasets or the user's COCO annotations.
+
+Both sources yield :class:`LabelledImage` (RGB image, GT boxes, an instance label image whose
+value ``k + 1`` is the mask of box ``k``). The COCO reader understands ``bbox`` and
+``segmentation`` as polygons, uncompressed RLE (``counts`` list) or compressed RLE (``counts``
+string, the LEB128-like encoding of the COCO API) — decoded here, pycocotools is not needed.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from seedmap.errors import InputError
+from seedmap.io.images import read_rgb
+
+
+@dataclass
+class LabelledImage:
+    image: np.ndarray  # H x W x 3 uint8 RGB
+    boxes: np.ndarray  # (N, 4) x0, y0, x1, y1 (x1/y1 exclusive pixel bounds)
+    labels: np.ndarray  # H x W int32; k + 1 = instance k, 0 = background
+    name: str = ""
+
+
+def rle_decode_counts(counts: list[int], h: int, w: int) -> np.ndarray:
+    """Uncompressed COCO RLE (column-major runs starting with zeros) -> ``h x w`` uint8 mask."""
+    flat = np.zeros(h * w, np.uint8)
+    pos = 0
+    val = 0
+    for c in counts:
+        c = int(c)
+        if val:
+            flat[pos:pos + c] = 1
+        pos += c
+        val ^= 1
+    if pos != h * w:
+        raise ValueError(f"RLE covers {pos} pixels, image has {h * w}")
+    return flat.reshape(w, h).T.copy()
+
+
+def rle_string_to_counts(s: str | bytes) -> list[int]:
+    """Decode the COCO API's compressed RLE string into run lengths."""
+    if isinstance(s, bytes):
+        s = s.decode("ascii")
+    counts: list[int] = []
+    i = 0
+    n = len(s)
+    while i < n:
+        x = 0
+        k = 0
+        more = True
+        while more:
+            c = ord(s[i]) - 48
+            x |= (c & 0x1F) << (5 * k)
+            more = bool(c & 0x20)
+            i += 1
+            k += 1
+            if not more and (c & 0x10):
+                x |= -1 << (5 * k)
+        if len(counts) > 2:
+            x += counts[-2]
+        counts.append(x)
+    return counts
+
+
+def rle_counts_to_string(counts: list[int]) -> str:
+    """Inverse of :func:`rle_string_to_counts` (used by the tests to build compressed RLE)."""
+    out = []
+    for i, c in enumerate(counts):
+        x = int(c)
+        if i > 2:
+            x -= int(counts[i - 2])
+        more = True
+        while more:
+            ch = x & 0x1F
+            x >>= 5
+            more = not ((x == 0 and not (ch & 0x10)) or (x == -1 and (ch & 0x10)))
+            if more:
+                ch |= 0x20
+            out.append(chr(ch + 48))
+    return "".join(out)
+
+
+def segmentation_mask(seg: object, h: int, w: int) -> np.ndarray:
+    """COCO ``segmentation`` (polygons or RLE) -> ``h x w`` uint8 mask."""
+    if isinstance(seg, list):
+        m = np.zeros((h, w), np.uint8)
+        for poly in seg:
+            p = np.asarray(poly, np.float64).reshape(-1, 2)
+            if len(p) >= 3:
+                # polygon vertices are continuous coordinates with pixel edges at integers (COCO);
+                # shift to OpenCV's pixel-centre convention and fill with 1/16 px precision
+                pts = np.round((p - 0.5) * 16).astype(np.int32)
+                cv2.fillPoly(m, [pts], 1, cv2.LINE_8, 4)
+        return m
+    if isinstance(seg, dict) and "counts" in seg:
+        sh = seg.get("size", [h, w])
+        counts = seg["counts"]
+        if isinstance(counts, (str, bytes)):
+            counts = rle_string_to_counts(counts)
+        return rle_decode_counts(counts, int(sh[0]), int(sh[1]))
+    raise ValueError("segmentation must be a polygon list or an RLE dict")
+
+
+class CocoSource:
+    """Images + instance masks from a COCO JSON file (one category or all categories as 'seed')."""
+
+    def __init__(self, json_path: str | Path, images_root: str | Path | None = None,
+                 category: str | None = None) -> None:
+        p = Path(json_path)
+        if not p.is_file():
+            raise InputError("COCO annotation file not found", p)
+        try:
+            d = json.loads(p.read_text())
+        except json.JSONDecodeError as e:
+            raise InputError(f"not valid JSON ({e.msg} at line {e.lineno})", p) from None
+        if not isinstance(d, dict) or "images" not in d or "annotations" not in d:
+            raise InputError("not a COCO file (needs 'images' and 'annotations')", p)
+        self.path = p
+        self.root = Path(images_root) if images_root else p.parent
+        cats = {c["id"]: c.get("name", "") for c in d.get("categories", [])}
+        keep_cat = None
+        if category is not None:
+            keep_cat = {i for i, n in cats.items() if n == category}
+            if not keep_cat:
+                raise InputError(f"no category named {category!r} (have: {', '.join(cats.values())})", p)
+        self.images = d["images"]
+        self.anns: dict[int, list[dict]] = {}
+        for a in d["annotations"]:
+            if keep_cat is not None and a.get("category_id") not in keep_cat:
+                continue
+            self.anns.setdefault(a["image_id"], []).append(a)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __getitem__(self, i: int) -> LabelledImage:
+        im = self.images[i]
+        img = read_rgb(self.root / im["file_name"])
+        h, w = img.shape[:2]
+        labels = np.zeros((h, w), np.int32)
+        boxes = []
+        for a in self.anns.get(im["id"], []):
+            try:
+                m = segmentation_mask(a["segmentation"], h, w) if a.get("segmentation") else None
+            except (ValueError, TypeError) as e:
+                raise InputError(f"annotation {a.get('id')}: bad segmentation ({e})", self.path) from None
+            if m is not None and m.shape != (h, w):
+                raise InputError(f"annotation {a.get('id')}: mask size {m.shape} != image {h}x{w}", self.path)
+            if "bbox" in a:
+                x, y, bw, bh = (float(v) for v in a["bbox"])
+                box = [x, y, x + bw, y + bh]
+            elif m is not None and m.any():
+                ys, xs = np.nonzero(m)
+                box = [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
+            else:
+                continue
+            boxes.append(box)
+            if m is not None:
+                labels[(m > 0) & (labels == 0)] = len(boxes)
+        return LabelledImage(img, np.asarray(boxes, np.float64).reshape(-1, 4), labels, im["file_name"])
+
+
+class SeedmapSource:
+    """Every (frame, camera) image of a simulated seedmap dataset with its GT instances."""
+
+    def __init__(self, root: str | Path, min_area_px: int = 3, frames: list[int] | None = None) -> None:
+        from seedmap.io.seedmap_dataset import SeedmapDataset
+
+        self.ds = SeedmapDataset(root)
+        if not (Path(root) / "gt" / "instances").is_dir():
+            raise InputError("dataset has no ground truth (gt/instances/) to train on", root)
+        self.min_area = min_area_px
+        fr = list(range(len(self.ds))) if frames is None else frames
+        self.items = [(i, c) for i in fr for c in ("left", "right")]
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, k: int) -> LabelledImage:
+        i, cam = self.items[k]
+        img = read_rgb(self.ds.image_path(i, cam))
+        inst = self.ds.gt_instances(i, cam)
+        raw = self.ds.gt_label_image(i, cam).astype(np.int64)
+        keep = inst.area >= self.min_area
+        lut = np.zeros(int(max(raw.max(), inst.label.max(initial=0))) + 1, np.int32)
+        lut[inst.label[keep].astype(np.int64)] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
+        return LabelledImage(img, inst.boxes[keep].astype(np.float64), lut[raw], f"{cam}/{i:06d}.png")
+
+
+def open_labelled(path: str | Path, images_root: str | Path | None = None, frames: list[int] | None = None):
+    """A seedmap dataset folder or a COCO ``.json`` file -> a labelled-image source."""
+    p = Path(path)
+    if p.suffix.lower() == ".json":
+        return CocoSource(p, images_root)
+    if not p.exists():
+        raise InputError("training data not found", p)
+    return SeedmapSource(p, frames=frames)
