@@ -25,7 +25,7 @@ SETTINGS = settings(max_examples=int(os.environ.get("SEEDMAP_FUZZ_EXAMPLES", "40
 
 focal = st.floats(100, 3000)
 baseline = st.floats(0.01, 1.5)
-size = st.tuples(st.integers(16, 4096), st.integers(16, 4096))
+size = st.tuples(st.integers(64, 4096), st.integers(64, 4096))
 small = st.floats(-0.2, 0.2)
 
 
@@ -34,7 +34,7 @@ def rigs(draw):
     w, h = draw(size)
     def cam():
         f = draw(focal)
-        K = np.array([[f, 0, draw(st.floats(0, w))], [0, f * draw(st.floats(0.95, 1.05)), draw(st.floats(0, h))],
+        K = np.array([[f, 0, w * draw(st.floats(0.3, 0.7))], [0, f * draw(st.floats(0.95, 1.05)), h * draw(st.floats(0.3, 0.7))],
                       [0, 0, 1]])
         D = np.array([draw(small), draw(small), draw(st.floats(-1e-3, 1e-3)), draw(st.floats(-1e-3, 1e-3))])
         return CameraModel(K, D, w, h)
@@ -60,6 +60,53 @@ def test_kalibr_round_trip(tmp_path, rig):
     np.testing.assert_allclose(got.left.K, rig.left.K)
     np.testing.assert_allclose(got.right.D, rig.right.D)
     assert got.baseline == pytest.approx(rig.baseline)
+
+
+@SETTINGS
+@given(rig=rigs())
+def test_ros_camera_info_round_trip(tmp_path, rig):
+    """camera_calibration-style left/right YAML (K, D, R, P from cv2.stereoRectify) -> the same extrinsics."""
+    import cv2
+
+    D5 = [np.append(c.D, 0.0) for c in (rig.left, rig.right)]
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(rig.left.K, D5[0], rig.right.K, D5[1], rig.left.size, rig.R,
+                                           rig.T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+    for name, c, D, Ri, Pi in (("left", rig.left, D5[0], R1, P1), ("right", rig.right, D5[1], R2, P2)):
+        d = {"image_width": c.width, "image_height": c.height, "camera_name": name,
+             "camera_matrix": {"rows": 3, "cols": 3, "data": c.K.reshape(-1).tolist()},
+             "distortion_model": "plumb_bob", "distortion_coefficients": {"rows": 1, "cols": 5, "data": D.tolist()},
+             "rectification_matrix": {"rows": 3, "cols": 3, "data": Ri.reshape(-1).tolist()},
+             "projection_matrix": {"rows": 3, "cols": 4, "data": Pi.reshape(-1).tolist()}}
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(d))
+    got = load_rig(tmp_path / "left.yaml", tmp_path / "right.yaml")
+    np.testing.assert_allclose(got.R, rig.R, atol=1e-7)
+    np.testing.assert_allclose(got.T, rig.T, atol=1e-7 * max(1.0, rig.baseline))
+    calib = rectify(got)[0]
+    assert calib.baseline == pytest.approx(rig.baseline, rel=1e-7)
+    assert calib.fx == pytest.approx(P1[0, 0])
+
+
+@SETTINGS
+@given(rig=rigs(), yaw=st.floats(-180, 180), t=st.tuples(small, small, small))
+def test_euroc_sensor_yaml_round_trip(tmp_path, rig, yaw, t):
+    T_B0 = np.eye(4)
+    T_B0[:3, :3] = Rotation.from_euler("zx", [yaw, 90], degrees=True).as_matrix()
+    T_B0[:3, 3] = t
+    T_01 = np.eye(4)
+    T_01[:3, :3], T_01[:3, 3] = rig.R, rig.T
+    for i, (c, T) in enumerate(((rig.left, T_B0), (rig.right, T_B0 @ np.linalg.inv(T_01)))):
+        (tmp_path / f"cam{i}").mkdir(exist_ok=True)
+        K = c.K
+        (tmp_path / f"cam{i}" / "sensor.yaml").write_text(
+            "%YAML:1.0\nT_BS:\n  cols: 4\n  rows: 4\n  data: [" + ", ".join(repr(float(x)) for x in T.reshape(-1))
+            + f"]\nresolution: [{c.width}, {c.height}]\ncamera_model: pinhole\n"
+            f"intrinsics: [{float(K[0, 0])!r}, {float(K[1, 1])!r}, {float(K[0, 2])!r}, {float(K[1, 2])!r}]\n"
+            "distortion_model: radial-tangential\n"
+            f"distortion_coefficients: [{', '.join(repr(float(x)) for x in c.D)}]\n")
+    got = load_rig(tmp_path / "cam0" / "sensor.yaml")
+    np.testing.assert_allclose(got.R, rig.R, atol=1e-9)
+    np.testing.assert_allclose(got.T, rig.T, atol=1e-9)
+    np.testing.assert_allclose(got.right.D, rig.right.D, rtol=1e-6, atol=1e-15)
 
 
 @SETTINGS

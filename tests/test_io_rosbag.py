@@ -261,3 +261,59 @@ def test_bag_info_and_cli(tmp_path):
     r = subprocess.run([sys.executable, "-m", "seedmap.cli", "bag-info", str(tmp_path / "nope.bag")],
                        capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1
+
+
+def test_raw_distorted_camera_info_builds_maps(tmp_path):
+    """CameraInfo with real distortion and rectification (as camera_calibration writes it): the loader
+    rectifies with the camera_info's own R and P - calib from P, one remap per image."""
+    from rosbags.rosbag1 import Writer
+
+    ts = _store("ros1")
+    K = np.array([[FX, 0, CX], [0, FX, CY], [0, 0, 1.0]])
+    D = np.array([-0.2, 0.05, 0.0, 0.0, 0.0])
+    R = cv2.Rodrigues(np.array([0.0, 0.01, 0.0]))[0]
+    T = np.array([-BASE, 0.0, 0.0])
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(K, D, K, D, (W, H), R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+    infos = []
+    for Ri, Pi in ((R1, P1), (R2, P2)):
+        m = _info_msg(ts, "ros1", 1.0, False)
+        m.D, m.K, m.R, m.P = D, K.reshape(-1), Ri.reshape(-1), Pi.reshape(-1)
+        infos.append(m)
+    path = tmp_path / "raw.bag"
+    with Writer(path) as w:
+        cl = w.add_connection("/s/left/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+        cr = w.add_connection("/s/right/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+        il = w.add_connection("/s/left/camera_info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        ir = w.add_connection("/s/right/camera_info", "sensor_msgs/msg/CameraInfo", typestore=ts)
+        w.write(il, 1, ts.serialize_ros1(infos[0], "sensor_msgs/msg/CameraInfo"))
+        w.write(ir, 1, ts.serialize_ros1(infos[1], "sensor_msgs/msg/CameraInfo"))
+        for k, c in ((0, cl), (1, cr)):
+            w.write(c, 10, ts.serialize_ros1(_image_msg(ts, "ros1", 1.0, _image(0, k)), "sensor_msgs/msg/Image"))
+    with RosbagSequence(path) as seq:
+        assert seq.maps is not None
+        assert seq.calib.fx == pytest.approx(P1[0, 0]) and seq.calib.cy == pytest.approx(P1[1, 2])
+        assert seq.calib.baseline == pytest.approx(-P2[0, 3] / P2[0, 0])
+        np.testing.assert_allclose(seq.rig.T, T, atol=1e-9)  # extrinsics recovered from R1, R2, P2
+        f = seq[0]
+        mx, my = cv2.initUndistortRectifyMap(K, D, R1, P1, (W, H), cv2.CV_32FC1)
+        want = cv2.remap(_image(0, 0), mx, my, cv2.INTER_LINEAR)
+        assert np.mean(np.abs(f.left.astype(int) - want.astype(int))) < 2.0
+
+
+def test_stereo_size_mismatch_in_bag(tmp_path):
+    from rosbags.rosbag1 import Writer
+
+    ts = _store("ros1")
+    path = tmp_path / "m.bag"
+    with Writer(path) as w:
+        cl = w.add_connection("/left/image", "sensor_msgs/msg/Image", typestore=ts)
+        cr = w.add_connection("/right/image", "sensor_msgs/msg/Image", typestore=ts)
+        w.write(cl, 10, ts.serialize_ros1(_image_msg(ts, "ros1", 1.0, _image(0, 0)), "sensor_msgs/msg/Image"))
+        small = ts.types["sensor_msgs/msg/Image"](header=_header(ts, "ros1", 1.0, "c"), height=H // 2, width=W,
+                                                  encoding="rgb8", is_bigendian=0, step=W * 3,
+                                                  data=_image(0, 1)[: H // 2].reshape(-1))
+        w.write(cr, 10, ts.serialize_ros1(small, "sensor_msgs/msg/Image"))
+    calib = tmp_path / "calib.yaml"
+    calib.write_text(f"fx: {FX}\nfy: {FX}\ncx: {CX}\ncy: {CY}\nbaseline_m: 0.2\nimage_width: {W}\nimage_height: {H}\n")
+    with RosbagSequence(path, calib=calib) as seq, pytest.raises(InputError, match="differ in size"):
+        seq[0]

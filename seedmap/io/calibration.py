@@ -183,6 +183,9 @@ def check_image_size(calib_size: tuple[int, int], image: np.ndarray, image_path:
 def _calib_from_P(P1: np.ndarray, P2: np.ndarray, size: tuple[int, int], src: Path | None) -> StereoCalib:
     P1 = np.asarray(P1, float).reshape(3, 4)
     P2 = np.asarray(P2, float).reshape(3, 4)
+    if not (np.all(np.isfinite(P1)) and np.all(np.isfinite(P2))):
+        raise InputError("rectification failed (NaN in the projection matrices): check that the principal point "
+                         "lies inside the image and the intrinsics are sane", src)
     fx = P1[0, 0]
     if abs(P2[1, 3] - P1[1, 3]) > abs(P2[0, 3] - P1[0, 3]):
         raise InputError("rectified projection P2 has a vertical baseline (P2[1,3] != 0): not a horizontal rig", src)
