@@ -12,7 +12,7 @@ Read with ``rosbags`` (``rosbags.highlevel.AnyReader``): no ROS installation nee
   (``*rect*``, or ``rectified=True``) the calibration is ``P`` of each camera; with raw images the loader
   rectifies with the camera_info's own ``K, D, R, P`` exactly as ROS ``image_proc`` does.
 
-Frames load lazily (random access by bag time); iterate the sequence for one streaming pass.
+Frames load lazily: ``seq[i]`` seeks by bag time; ``for frame in seq`` makes one pass over the bag.
 """
 
 from __future__ import annotations
@@ -219,6 +219,7 @@ class RosbagSequence:
         self.path = Path(path)
         self.root = self.path
         self.warnings: list[str] = []
+        self._gray_topics: set[str] = set()
         self._reader = _open_reader(self.path)
         try:
             self._init(left_topic, right_topic, calib, right_calib, sync_tol_s, rectified, rectify_alpha)
@@ -353,8 +354,8 @@ class RosbagSequence:
 
     def _decode(self, topic: str, msg) -> np.ndarray:
         img, gray = decode_ros_image(msg, f"{self.path}:{topic}")
-        if gray and not getattr(self, f"_gray_{id(topic)}", False):
-            setattr(self, f"_gray_{id(topic)}", True)
+        if gray and topic not in self._gray_topics:
+            self._gray_topics.add(topic)
             self.warnings.append(f"{topic}: grayscale images converted to 3-channel RGB")
         return img
 
@@ -383,7 +384,7 @@ class RosbagSequence:
         return self._finish(int(i), left, right)
 
     def __iter__(self) -> Iterator[StereoFrame]:
-        """All frames in order in one streaming pass over the bag (faster than indexing)."""
+        """All frames in order in one pass over the bag."""
         want: dict[tuple[str, int, int], tuple[int, int]] = {}
         for i, (le, re_) in enumerate(self._frames):
             want[(self.left_topic, le[1], le[2])] = (i, 0)
