@@ -89,3 +89,17 @@ def test_two_tiny_ranges_all_columns_and_resume(tmp_path):
     recs2 = run_benchmark(paper_ranges(cfg), out, cfg, progress=False)
     assert {p: p.stat().st_mtime_ns for p in out.glob("runs/*/*/*/metrics.json")} == stamp
     assert [(r.method, r.mdm_m) for r in recs2] == [(r.method, r.mdm_m) for r in recs]
+
+
+def test_methods_without_ground_truth_mark_the_oracle_na():
+    from seedmap.associate.features import available_kinds
+    from seedmap.eval.benchmark import default_methods
+
+    ms = {m.name: m for m in default_methods(BenchmarkConfig(), with_gt=False)}
+    assert ms["seeds+gt"].unavailable and "ground truth" in ms["seeds+gt"].unavailable
+    assert ms["seeds+fast"].unavailable is None
+    for k, why in available_kinds().items():
+        assert ms[k].unavailable == why
+    with_gt = {m.name: m for m in default_methods(BenchmarkConfig(), with_gt=True)}
+    assert with_gt["seeds+gt"].unavailable is None
+    assert list(with_gt)[:2] == ["seeds+gt", "seeds+fast"]

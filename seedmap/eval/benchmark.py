@@ -874,6 +874,7 @@ def matches_plot_png(records: Sequence[RunRecord], scenario: str, range_name: st
                 ax.axvline(int(r.lost_frame), color=c, lw=0.8, ls=":")
     for ax, what in ((ax1, "stereo matches"), (ax2, "temporal matches")):
         ax.set_yscale("symlog", linthresh=10)
+        ax.set_ylim(bottom=0)
         ax.set_ylabel(what)
         ax.legend(fontsize=7, ncol=2)
     ax2.set_xlabel("frame")
