@@ -120,7 +120,7 @@ class ImagingConfig(ConfigModel):
     shadows: bool = True
     flash_offset: tuple[float, float, float] = Field(
         (0.055, -0.06, 0.0), description="flash position in the left camera frame (m): between the lenses, above")
-    flash_radius: float = Field(0.02, ge=0, description="flash disc radius for soft shadows (m)")
+    flash_radius: float = Field(0.015, ge=0, description="flash disc radius for soft shadows (m)")
     exposure: float = Field(1.0, gt=0, description="overall gain; 1 = a white seed at 0.7 m near full scale")
     exposure_jitter: float = Field(0.04, ge=0, le=0.5, description="per-frame relative std of the gain")
     ambient: float = Field(0.025, ge=0, description="ambient light relative to the flash at 0.7 m")

@@ -60,6 +60,20 @@ def _rngs(cfg: SimConfig) -> tuple[np.random.Generator, np.random.Generator, np.
     return np.random.default_rng(w), np.random.default_rng(t), f
 
 
+class _Reentered:
+    """Run the body inside an already-entered ``atomic_output_dir`` context (so that errors while
+    creating the folder can be reported as user errors)."""
+
+    def __init__(self, ctx, value) -> None:
+        self.ctx, self.value = ctx, value
+
+    def __enter__(self):
+        return self.value
+
+    def __exit__(self, *exc):
+        return self.ctx.__exit__(*exc)
+
+
 def range_length(dataset_path: str | Path) -> float | None:
     """The simulated range length (m) recorded in ``gt/config.yaml`` (None for real/unknown data)."""
     import yaml
@@ -100,7 +114,12 @@ def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress:
     world = build_range_world(cfg, rng_world)
     traj = range_trajectory(cfg, rng_traj)
     frame_seeds = frame_ss.spawn(len(traj))
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+    try:
+        ctx = atomic_output_dir(out, overwrite=overwrite)
+        tmp = ctx.__enter__()
+    except OSError as e:
+        raise InputError(f"cannot create the output folder ({e.strerror or e})", out) from None
+    with _Reentered(ctx, tmp):
         w = DatasetWriter(tmp)
         w.write_calib(calib)
         w.write_times(traj.timestamps)

@@ -63,7 +63,7 @@ def _o3d():
 
 def _rays_tensor(o: np.ndarray, d: np.ndarray):
     o3d = _o3d()
-    r = np.empty((len(o), 6), np.float32)
+    r = np.empty((len(d), 6), np.float32)
     r[:, :3] = o
     r[:, 3:] = d
     return o3d.core.Tensor.from_numpy(r)
@@ -105,8 +105,12 @@ class _FrameScene:
                  light: np.ndarray) -> None:
         o3d = _o3d()
         self.world = world
+        self.stats: dict[str, int] = {}
+        self.f32 = _world_f32(world)
         self.D = world.panicle_motion(t)
         self.Dinv = invert(self.D) if len(self.D) else self.D
+        self.D32 = self.D.astype(np.float32)
+        self.Dinv32 = self.Dinv.astype(np.float32)
         V, F, VN, VC, VUV, cls = [], [], [], [], [], []
         off = 0
 
@@ -126,11 +130,12 @@ class _FrameScene:
             add(v, np.array([[0, 1, 2], [0, 2, 3]]), np.tile([0, 0, 1.0], (4, 1)),
                 np.tile(world.soil_color, (4, 1)), np.zeros((4, 2)), CLS_SOIL)
         if len(world.stalk_vertices):
-            add(world.stalk_vertices, world.stalk_triangles, vertex_normals(world.stalk_vertices,
-                                                                             world.stalk_triangles),
-                world.stalk_color, np.zeros((len(world.stalk_vertices), 2)), CLS_STALK)
+            vn = world.cache.get("stalk_normals")
+            if vn is None:
+                vn = world.cache["stalk_normals"] = vertex_normals(world.stalk_vertices, world.stalk_triangles)
+            add(world.stalk_vertices, world.stalk_triangles, vn, world.stalk_color,
+                np.zeros((len(world.stalk_vertices), 2)), CLS_STALK)
         nL = len(world.leaf_vertices)
-        self.leaf_tri0 = off
         if nL:
             M = world.leaf_motion(t)
             lv = np.einsum("lij,lvj->lvi", M[:, :3, :3], world.leaf_vertices) + M[:, None, :3, 3]
@@ -152,10 +157,10 @@ class _FrameScene:
                                    o3d.core.Tensor.from_numpy(self.F.astype(np.uint32)))
         else:
             self.env = None
-        self.leaf_tris_per = len(world.leaf_triangles)
         # panicles that can be seen from (or shadow what is seen from) any of the cameras
-        self.active: list[int] = []
-        self.centers = np.zeros((0, 3))
+        self.active = np.zeros(0, np.int64)
+        self.centers = np.zeros((0, 3), np.float32)
+        self.radii = np.zeros(0, np.float32)
         if world.panicles:
             c_rest = np.stack([p.center for p in world.panicles])
             r = np.array([p.radius for p in world.panicles])
@@ -163,27 +168,61 @@ class _FrameScene:
             vis = np.zeros(len(r), bool)
             for T in cams:
                 vis |= _sphere_in_frustum(c_now, r + 0.08, T, calib)
-            lc = _sphere_in_frustum(c_now, r + 0.08, cams[0], calib, origin=light)
-            vis |= lc
-            self.active = [int(k) for k in np.nonzero(vis)[0]]
-            self.centers = c_now
-            self.radii = r
-        self.bvh = {k: _panicle_bvh(world, k) for k in self.active}
+            vis |= _sphere_in_frustum(c_now, r + 0.08, cams[0], calib, origin=light)
+            self.active = np.nonzero(vis)[0]
+            self.centers = c_now[self.active].astype(np.float32)
+            self.radii = r[self.active].astype(np.float32)
+        self.bvh = {int(k): _panicle_bvh(world, int(k)) for k in self.active}
+        self.seed_start = np.array([p.seed_start for p in world.panicles], np.int64)
+
+    # ---- panicle selection ----
+    def pixel_boxes(self, T_wc: np.ndarray, calib: StereoCalib) -> np.ndarray:
+        """Conservative pixel rectangles ``(u0, v0, u1, v1)`` of the active panicles' bounding spheres
+        seen from camera ``T_wc`` (full image where a sphere reaches behind the camera)."""
+        R, o = T_wc[:3, :3], T_wc[:3, 3]
+        pc = (self.centers - o) @ R
+        out = np.empty((len(pc), 4))
+        for j, ((x, y, z), r) in enumerate(zip(pc, self.radii, strict=True)):
+            if z - r <= 0.01:
+                out[j] = (-1e9, -1e9, 1e9, 1e9)
+                continue
+            xs = [(x - r) / (z - r), (x - r) / (z + r), (x + r) / (z - r), (x + r) / (z + r)]
+            ys = [(y - r) / (z - r), (y - r) / (z + r), (y + r) / (z - r), (y + r) / (z + r)]
+            out[j] = (calib.cx + calib.fx * min(xs) - 1, calib.cy + calib.fy * min(ys) - 1,
+                      calib.cx + calib.fx * max(xs) + 1, calib.cy + calib.fy * max(ys) + 1)
+        return out
+
+    def _select(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, pix: np.ndarray | None,
+                boxes: np.ndarray | None) -> list[np.ndarray]:
+        """Per active panicle, the rays that may hit it (sphere test or pixel rectangle)."""
+        P = len(self.active)
+        if P == 0 or len(d) == 0:
+            return [np.zeros(0, np.int64)] * P
+        if pix is not None and boxes is not None:
+            u, v = pix[:, 0], pix[:, 1]
+            return [np.nonzero((u >= b[0]) & (u <= b[2]) & (v >= b[1]) & (v <= b[3]))[0] for b in boxes]
+        C = self.centers
+        r2 = self.radii ** 2
+        if o.shape[0] == 1:
+            oc = C - o[0]  # (P, 3)
+            b = d @ oc.T  # (N, P)
+            c2 = (oc * oc).sum(1)[None, :] - b * b
+        else:
+            b = d @ C.T - (d * o).sum(1)[:, None]
+            c2 = (C * C).sum(1)[None, :] - 2 * (o @ C.T) + (o * o).sum(1)[:, None] - b * b
+        ok = (c2 <= r2[None, :]) & (b + self.radii[None, :] > 0)
+        ok &= (b - np.sqrt(np.maximum(r2[None, :] - c2, 0))) < tmax[:, None]
+        return [np.nonzero(ok[:, j])[0] for j in range(P)]
 
     # ---- queries ----
-    def _sphere_select(self, k: int, o: np.ndarray, d: np.ndarray, best: np.ndarray) -> np.ndarray:
-        oc = (self.centers[k] - o).astype(np.float32)
-        b = np.einsum("ij,ij->i", oc, d)
-        c2 = np.einsum("ij,ij->i", oc, oc) - b * b
-        r2 = self.radii[k] ** 2
-        ok = (c2 <= r2) & (b + self.radii[k] > 0)
-        enter = b - np.sqrt(np.maximum(r2 - c2, 0))
-        return np.nonzero(ok & (enter < best))[0]
+    def trace(self, o: np.ndarray, d: np.ndarray, pix: np.ndarray | None = None,
+              boxes: np.ndarray | None = None) -> _Hits:
+        """Closest hit of rays ``o + t d`` (``d`` unit float32 (N, 3); ``o`` (1, 3) or (N, 3)).
 
-    def trace(self, o: np.ndarray, d: np.ndarray) -> _Hits:
-        """Closest hit of rays ``o + t d`` (``d`` unit, float32 arrays (N, 3))."""
+        ``pix``/``boxes``: pixel coordinates of primary rays and the panicles' pixel rectangles
+        (cheaper than the sphere test)."""
         n = len(d)
-        o = np.broadcast_to(np.asarray(o, np.float32), (n, 3))
+        o = np.asarray(o, np.float32)
         t = np.full(n, np.inf, np.float32)
         cls = np.zeros(n, np.uint8)
         obj = np.full(n, -1, np.int32)
@@ -191,40 +230,40 @@ class _FrameScene:
         bary = np.zeros((n, 2), np.float32)
         if self.env is not None and n:
             ans = self.env.cast_rays(_rays_tensor(o, d))
-            t = ans["t_hit"].numpy().copy()
+            t = ans["t_hit"].numpy()
             hit = np.isfinite(t)
-            prim[hit] = ans["primitive_ids"].numpy()[hit].astype(np.int64)
+            prim[hit] = ans["primitive_ids"].numpy()[hit]
             bary[hit] = ans["primitive_uvs"].numpy()[hit]
             cls[hit] = self.tri_cls[prim[hit]]
-        for k in self.active:
-            idx = self._sphere_select(k, o, d, t)
+        for j, idx in enumerate(self._select(o, d, t, pix, boxes)):
             if len(idx) == 0:
                 continue
-            Di = self.Dinv[k]
-            o_r = o[idx] @ Di[:3, :3].T.astype(np.float32) + Di[:3, 3].astype(np.float32)
-            d_r = d[idx] @ Di[:3, :3].T.astype(np.float32)
+            k = int(self.active[j])
+            Di = self.Dinv32[k]
+            oo = o if len(o) == 1 else o[idx]
+            o_r = oo @ Di[:3, :3].T + Di[:3, 3]
+            d_r = d[idx] @ Di[:3, :3].T
             bvh = self.bvh[k]
             ans = bvh.scene.cast_rays(_rays_tensor(o_r, d_r))
             tk = ans["t_hit"].numpy()
             better = tk < t[idx]
             if not better.any():
                 continue
-            j = idx[better]
-            t[j] = tk[better]
+            jj = idx[better]
+            t[jj] = tk[better]
             pk = ans["primitive_ids"].numpy()[better].astype(np.int64)
-            prim[j] = pk
-            bary[j] = ans["primitive_uvs"].numpy()[better]
-            cls[j] = np.where(pk < bvh.n_seed_tris, CLS_SEED, CLS_RACHIS)
-            obj[j] = k
+            prim[jj] = pk
+            bary[jj] = ans["primitive_uvs"].numpy()[better]
+            cls[jj] = np.where(pk < bvh.n_seed_tris, CLS_SEED, CLS_RACHIS)
+            obj[jj] = k
         seed = np.full(n, -1, np.int64)
         sm = cls == CLS_SEED
         if sm.any():
-            starts = np.array([p.seed_start for p in self.world.panicles])
-            seed[sm] = starts[obj[sm]] + prim[sm] // TRIS_PER_SEED
+            seed[sm] = self.seed_start[obj[sm]] + prim[sm] // TRIS_PER_SEED
         return _Hits(t, cls, obj, prim, bary, seed)
 
     def occluded(self, o: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """True where the segment ``o -> o + v`` (not unit) hits anything."""
+        """True where the segment ``o -> o + v`` (float32 (N, 3), not unit) hits anything."""
         n = len(o)
         occ = np.zeros(n, bool)
         if n == 0:
@@ -232,21 +271,35 @@ class _FrameScene:
         tfar = 1.0 - 1e-4
         if self.env is not None:
             occ = self.env.test_occlusions(_rays_tensor(o, v), tnear=0.0, tfar=tfar).numpy().astype(bool)
-        length = np.linalg.norm(v, axis=1).astype(np.float32)
-        du = v / np.maximum(length, 1e-12)[:, None]
-        for k in self.active:
-            rem = np.nonzero(~occ)[0]
-            if len(rem) == 0:
-                break
-            idx = rem[self._sphere_select(k, o[rem], du[rem], length[rem])]
+        rem = np.nonzero(~occ)[0]
+        if len(rem) == 0 or len(self.active) == 0:
+            return occ
+        length = np.sqrt((v[rem] * v[rem]).sum(1))
+        du = v[rem] / np.maximum(length, 1e-12)[:, None]
+        for j, sel in enumerate(self._select(o[rem], du, length, None, None)):
+            idx = rem[sel]
+            idx = idx[~occ[idx]]
             if len(idx) == 0:
                 continue
-            Di = self.Dinv[k]
-            o_r = o[idx] @ Di[:3, :3].T.astype(np.float32) + Di[:3, 3].astype(np.float32)
-            v_r = v[idx] @ Di[:3, :3].T.astype(np.float32)
+            k = int(self.active[j])
+            Di = self.Dinv32[k]
+            o_r = o[idx] @ Di[:3, :3].T + Di[:3, 3]
+            v_r = v[idx] @ Di[:3, :3].T
             occ[idx] = self.bvh[k].scene.test_occlusions(_rays_tensor(o_r, v_r), tnear=0.0,
                                                           tfar=tfar).numpy().astype(bool)
         return occ
+
+
+def _world_f32(world: World) -> dict:
+    """float32 copies of the per-seed arrays the shader reads (cached on the world)."""
+    f = world.cache.get("f32")
+    if f is None:
+        f = world.cache["f32"] = {
+            "xyz": world.seeds.xyz.astype(np.float32), "radii": world.seeds.radii.astype(np.float32),
+            "axes": world.seed_axes.astype(np.float32), "albedo": world.seed_albedo.astype(np.float32),
+            "glume": world.glume_albedo.astype(np.float32), "extent": world.glume_extent.astype(np.float32),
+            "ao": world.seed_ao.astype(np.float32)}
+    return f
 
 
 def _sphere_in_frustum(c: np.ndarray, r: np.ndarray, T_world_cam: np.ndarray, calib: StereoCalib,
@@ -286,189 +339,252 @@ def _soil_albedo(world: World, p: np.ndarray) -> np.ndarray:
     return world.soil_color[None, :] * val
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def _normalize(a: np.ndarray) -> np.ndarray:
+    return a / np.maximum(np.sqrt(_dot(a, a)), 1e-12)[:, None]
+
+
 def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray, light_axes: np.ndarray,
            cfg: SimConfig, rng: np.random.Generator) -> np.ndarray:
-    """Linear RGB radiance (relative to a white surface facing the flash at REF_DISTANCE) per ray."""
+    """Linear RGB radiance (1 = white surface facing the flash at REF_DISTANCE) per ray (float32 (N, 3))."""
+    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng)
+    return direct * vis[:, None] + amb
+
+
+def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray,
+                 light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator):
+    """``(direct (N, 3), flash visibility (N,), ambient (N, 3))``: radiance = direct * vis + ambient."""
     ic = cfg.imaging
     world = fs.world
+    f32 = fs.f32
     n = len(d)
-    out = np.zeros((n, 3), np.float32)
-    far = REF_DISTANCE * 0 + ic.light_cutoff * 1.3
-    live = np.nonzero(np.isfinite(h.t) & (h.t < far + 0.6))[0]
+    direct_out = np.zeros((n, 3), np.float32)
+    amb_out = np.zeros((n, 3), np.float32)
+    vis_out = np.ones(n, np.float32)
+    far = ic.light_cutoff + 0.3
+    live = np.nonzero(h.t < far)[0]
     if len(live) == 0:
-        return out
-    o = np.broadcast_to(o, (n, 3))[live]
+        return direct_out, vis_out, amb_out
     dl = d[live]
     t = h.t[live]
     cls = h.cls[live]
-    p = o + t[:, None] * dl
+    p = (o if len(o) == 1 else o[live]) + t[:, None] * dl
     m = len(live)
-    albedo = np.zeros((m, 3), np.float32)
-    nrm = np.zeros((m, 3), np.float32)
+    albedo = np.empty((m, 3), np.float32)
+    nrm = np.empty((m, 3), np.float32)
     ks = np.zeros(m, np.float32)
     shin = np.full(m, 20.0, np.float32)
     ao = np.ones(m, np.float32)
     prim = h.prim[live]
-    bary = h.bary[live]
     # env surfaces: interpolate vertex attributes
-    em = np.nonzero((cls == CLS_SOIL) | (cls == CLS_STALK) | (cls == CLS_LEAF))[0]
+    em = np.nonzero(cls <= CLS_LEAF)[0]
     if len(em):
         F = fs.F[prim[em]]
-        b1, b2 = bary[em, 0:1], bary[em, 1:2]
+        bary = h.bary[live[em]]
+        b1, b2 = bary[:, 0:1], bary[:, 1:2]
         b0 = 1 - b1 - b2
         nrm[em] = fs.VN[F[:, 0]] * b0 + fs.VN[F[:, 1]] * b1 + fs.VN[F[:, 2]] * b2
         albedo[em] = fs.VC[F[:, 0]] * b0 + fs.VC[F[:, 1]] * b1 + fs.VC[F[:, 2]] * b2
-        uvw = fs.VUV[F[:, 0]] * b0 + fs.VUV[F[:, 1]] * b1 + fs.VUV[F[:, 2]] * b2
         c = cls[em]
-        soil = c == CLS_SOIL
-        if soil.any():
+        soil = np.nonzero(c == CLS_SOIL)[0]
+        if len(soil):
             albedo[em[soil]] = _soil_albedo(world, p[em[soil]])
             ks[em[soil]] = 0.01
-        leaf = c == CLS_LEAF
-        if leaf.any():
-            s, w = uvw[leaf, 0], uvw[leaf, 1]
+        leaf = np.nonzero(c == CLS_LEAF)[0]
+        if len(leaf):
+            Fl = F[leaf]
+            bl0, bl1, bl2 = b0[leaf], b1[leaf], b2[leaf]
+            uvw = fs.VUV[Fl[:, 0]] * bl0 + fs.VUV[Fl[:, 1]] * bl1 + fs.VUV[Fl[:, 2]] * bl2
+            s, w = uvw[:, 0], uvw[:, 1]
             midrib = 1.0 + 0.35 * np.exp(-((w - 0.5) / 0.05) ** 2)
-            veins = 1.0 + 0.05 * np.sin(2 * np.pi * w * 11.0)
-            tipdry = 1.0 + 0.25 * np.clip((s - 0.75) / 0.25, 0, 1)
+            veins = 1.0 + 0.05 * np.sin(w * np.float32(2 * np.pi * 11.0))
+            tipdry = 1.0 + 0.25 * np.clip((s - 0.75) * 4.0, 0, 1)
             albedo[em[leaf]] *= (midrib * veins * tipdry)[:, None]
             ks[em[leaf]] = 0.10
             shin[em[leaf]] = 25.0
-        stalk = c == CLS_STALK
-        ks[em[stalk]] = 0.06
+        ks[em[c == CLS_STALK]] = 0.06
     # rachis: flat normals from the panicle mesh, rotated by the wind
     rm = np.nonzero(cls == CLS_RACHIS)[0]
     if len(rm):
-        objs = h.obj[live][rm]
+        objs = h.obj[live[rm]]
         for k in np.unique(objs):
             sel = rm[objs == k]
-            nrm[sel] = fs.bvh[k].face_normals[prim[sel]] @ fs.D[k, :3, :3].T.astype(np.float32)
+            nrm[sel] = fs.bvh[int(k)].face_normals[prim[sel]] @ fs.D32[k, :3, :3].T
         albedo[rm] = np.array([0.30, 0.26, 0.13], np.float32)
         ks[rm] = 0.04
     # seeds: analytic ellipsoid normal (smooth shading on a low-poly mesh), glume at the base
     sm = np.nonzero(cls == CLS_SEED)[0]
     if len(sm):
-        sid = h.seed[live][sm]
-        objs = h.obj[live][sm]
+        sid = h.seed[live[sm]]
+        objs = h.obj[live[sm]]
         p_rest = np.empty((len(sm), 3), np.float32)
-        for k in np.unique(objs):
+        uk = np.unique(objs)
+        for k in uk:
             sel = objs == k
-            Di = fs.Dinv[k]
+            Di = fs.Dinv32[k]
             p_rest[sel] = p[sm[sel]] @ Di[:3, :3].T + Di[:3, 3]
-        A = world.seed_axes[sid]
-        r = world.seeds.radii[sid]
-        q = np.einsum("nji,nj->ni", A, p_rest - world.seeds.xyz[sid])  # local coordinates
-        n_loc = q / (r * r)
-        n_rest = np.einsum("nij,nj->ni", A, n_loc)
-        n_w = np.empty_like(n_rest)
-        for k in np.unique(objs):
-            sel = objs == k
-            n_w[sel] = n_rest[sel] @ fs.D[k, :3, :3].T
-        nrm[sm] = n_w
+        A = f32["axes"][sid]
+        r = f32["radii"][sid]
+        q = np.matmul((p_rest - f32["xyz"][sid])[:, None, :], A)[:, 0, :]  # local coordinates
+        n_rest = np.matmul(A, (q / (r * r))[:, :, None])[:, :, 0]
+        if len(uk) == 1:
+            nrm[sm] = n_rest @ fs.D32[uk[0], :3, :3].T
+        else:
+            for k in uk:
+                sel = objs == k
+                nrm[sm[sel]] = n_rest[sel] @ fs.D32[k, :3, :3].T
         zrel = q[:, 2] / r[:, 2]
-        g = np.clip((world.glume_extent[sid] + 0.15 - zrel) / 0.3, 0, 1)
+        g = np.clip((f32["extent"][sid] + 0.15 - zrel) * (1 / 0.3), 0, 1)
         g = g * g * (3 - 2 * g)
-        albedo[sm] = world.seed_albedo[sid] * (1 - g[:, None]) + world.glume_albedo[sid] * g[:, None]
+        albedo[sm] = f32["albedo"][sid] * (1 - g[:, None]) + f32["glume"][sid] * g[:, None]
         ks[sm] = 0.12 * (1 - g) + 0.03 * g
         shin[sm] = 45.0
-        ao[sm] = world.seed_ao[sid]
-    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
-    flip = np.einsum("ij,ij->i", nrm, dl) > 0
+        ao[sm] = f32["ao"][sid]
+    nrm = _normalize(nrm)
+    flip = _dot(nrm, dl) > 0
     nrm[flip] *= -1
     # flash: a random point on a small disc per sample (soft shadows)
-    rr = ic.flash_radius * np.sqrt(rng.uniform(0, 1, m))
-    th = rng.uniform(0, 2 * np.pi, m)
-    lp = light[None, :] + (rr * np.cos(th))[:, None] * light_axes[0] + (rr * np.sin(th))[:, None] * light_axes[1]
-    lv = (lp - p).astype(np.float32)
-    dist = np.linalg.norm(lv, axis=1)
+    rr = (ic.flash_radius * np.sqrt(rng.random(m, np.float32))).astype(np.float32)
+    th = rng.random(m, np.float32) * np.float32(2 * np.pi)
+    lp = light.astype(np.float32)[None, :] + (rr * np.cos(th))[:, None] * light_axes[0] + \
+        (rr * np.sin(th))[:, None] * light_axes[1]
+    lv = lp - p
+    dist = np.sqrt(_dot(lv, lv))
     ldir = lv / dist[:, None]
-    ndl = np.maximum(np.einsum("ij,ij->i", nrm, ldir), 0)
-    fade = np.clip((ic.light_cutoff + 0.25 - dist) / 0.5, 0, 1)
+    ndl = np.maximum(_dot(nrm, ldir), 0)
+    fade = np.clip((ic.light_cutoff + 0.25 - dist) * 2.0, 0, 1)
     fade = fade * fade * (3 - 2 * fade)
-    irr = (REF_DISTANCE / dist) ** 2 * fade
+    irr = (REF_DISTANCE * REF_DISTANCE) / (dist * dist) * fade
     vis = np.ones(m, np.float32)
     if ic.shadows:
         lit = np.nonzero((ndl > 0) & (irr > 1e-4))[0]
-        start = p[lit] + nrm[lit] * 2e-4
-        occ = fs.occluded(start.astype(np.float32), (lp[lit] - start).astype(np.float32))
+        start = p[lit] + nrm[lit] * 2e-4 + ldir[lit] * 5e-4
+        occ = fs.occluded(start, lp[lit] - start)
         vis[lit[occ]] = 0.0
-    hv = ldir - dl
-    hv /= np.maximum(np.linalg.norm(hv, axis=1, keepdims=True), 1e-12)
-    spec = ks * np.maximum(np.einsum("ij,ij->i", nrm, hv), 0) ** shin * (ndl > 0)
-    rad = albedo * (ndl * vis)[:, None] + spec[:, None] * vis[:, None] + albedo * (ic.ambient * ao)[:, None]
-    out[live] = rad * irr[:, None]
-    return out
+    hv = _normalize(ldir - dl)
+    spec = ks * np.maximum(_dot(nrm, hv), 0) ** shin
+    direct_out[live] = albedo * (ndl * irr)[:, None] + (spec * irr * (ndl > 0))[:, None]
+    amb_out[live] = albedo * (ic.ambient * irr * ao)[:, None]
+    vis_out[live] = vis
+    return direct_out, vis_out, amb_out
 
 
-def _pixel_dirs(calib: StereoCalib, R: np.ndarray, du: float = 0.0, dv: float = 0.0,
-                idx: np.ndarray | None = None) -> np.ndarray:
-    """Unit world directions of rays through pixel centres (+ sub-pixel offsets ``du, dv``)."""
-    H, W = calib.height, calib.width
-    if idx is None:
+def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.ndarray:
+    """Edge-aware box filter of the flash visibility (one random flash sample per pixel makes soft
+    shadows noisy): average only over neighbours that see the same object, separably."""
+    H, W = vis.shape
+    for axis in (1, 0):
+        vp = np.pad(vis, radius, mode="edge")
+        kp = np.pad(key, radius, mode="constant", constant_values=np.iinfo(np.int64).min)
+        num = vis.copy()
+        den = np.ones_like(vis)
+        for s in range(-radius, radius + 1):
+            if s == 0:
+                continue
+            if axis == 1:
+                vs, ks = vp[radius:radius + H, radius + s:radius + s + W], kp[radius:radius + H, radius + s:radius + s + W]
+            else:
+                vs, ks = vp[radius + s:radius + s + H, radius:radius + W], kp[radius + s:radius + s + H, radius:radius + W]
+            same = ks == key
+            num += np.where(same, vs, 0)
+            den += same
+        vis = num / den
+    return vis
+
+
+def _camera_dirs(world: World, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
+    """Unit ray directions through all pixel centres in the camera frame (cached) and pixel (u, v)."""
+    key = ("dirs", calib)
+    got = world.cache.get(key)
+    if got is None:
+        H, W = calib.height, calib.width
         vv, uu = np.mgrid[0:H, 0:W]
-        uu, vv = uu.reshape(-1), vv.reshape(-1)
-    else:
-        vv, uu = np.divmod(idx, W)
-    x = ((uu + du - calib.cx) / calib.fx).astype(np.float32)
-    y = ((vv + dv - calib.cy) / calib.fy).astype(np.float32)
-    dc = np.stack([x, y, np.ones_like(x)], 1)
-    dc /= np.linalg.norm(dc, axis=1, keepdims=True)
-    return (dc @ R.T.astype(np.float32)).astype(np.float32)
+        pix = np.stack([uu.reshape(-1), vv.reshape(-1)], 1).astype(np.float32)
+        got = (_unit_dirs(calib, pix), pix)
+        world.cache[key] = got
+    return got
+
+
+def _unit_dirs(calib: StereoCalib, pix: np.ndarray) -> np.ndarray:
+    x = (pix[:, 0] - np.float32(calib.cx)) / np.float32(calib.fx)
+    y = (pix[:, 1] - np.float32(calib.cy)) / np.float32(calib.fy)
+    inv = 1.0 / np.sqrt(x * x + y * y + 1.0)
+    return np.stack([x * inv, y * inv, inv], 1).astype(np.float32)
 
 
 def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: SimConfig,
                    rng: np.random.Generator, light: np.ndarray, light_axes: np.ndarray):
     H, W = calib.height, calib.width
-    R = T_wc[:3, :3]
+    R = T_wc[:3, :3].astype(np.float32)
     o = T_wc[:3, 3].astype(np.float32)[None, :]
-    d = _pixel_dirs(calib, R)
-    h = fs.trace(o, d)
-    rgb = _shade(fs, o, d, h, light, light_axes, cfg, rng)
+    dc, pix = _camera_dirs(fs.world, calib)
+    d = dc @ R.T
+    boxes = fs.pixel_boxes(T_wc, calib)
+    h = fs.trace(o, d, pix, boxes)
+    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng)
+    key = np.where(h.seed >= 0, h.seed, -(h.cls.astype(np.int64) * 1_000_000 + h.obj + 2))
+    if cfg.imaging.shadows and cfg.imaging.flash_radius > 0:
+        vis = _filter_visibility(vis.reshape(H, W), key.reshape(H, W)).reshape(-1)
+    rgb = direct * vis[:, None] + amb
     seed_img = h.seed.reshape(H, W)
-    zdir = (d @ R[:, 2].astype(np.float32))
-    depth = np.where(np.isfinite(h.t), h.t * zdir, np.nan).reshape(H, W).astype(np.float32)
-    # adaptive anti-aliasing: supersample pixels whose neighbours see another object or depth
+    depth = np.where(np.isfinite(h.t), h.t * dc[:, 2], np.nan).reshape(H, W).astype(np.float32)
+    # adaptive anti-aliasing: supersample pixels whose neighbours see another object or depth;
+    # a sub-sample that sees the same object as the pixel centre reuses the centre's shading
     n_ss = cfg.imaging.supersample
     if n_ss > 1:
-        key = np.where(h.seed >= 0, h.seed, -(h.cls.astype(np.int64) * 1_000_000 + h.obj + 2)).reshape(H, W)
-        tt = np.where(np.isfinite(h.t), h.t, 1e3).reshape(H, W)
+        key2 = key.reshape(H, W)
+        tt = np.minimum(h.t, 1e3).reshape(H, W)
+        lit = tt < cfg.imaging.light_cutoff + 0.3
         edge = np.zeros((H, W), bool)
-        dk = key[:, 1:] != key[:, :-1]
-        dz = np.abs(tt[:, 1:] - tt[:, :-1]) > 0.02 * np.minimum(tt[:, 1:], tt[:, :-1])
-        e = dk | dz
-        edge[:, 1:] |= e
-        edge[:, :-1] |= e
-        dk = key[1:, :] != key[:-1, :]
-        dz = np.abs(tt[1:, :] - tt[:-1, :]) > 0.02 * np.minimum(tt[1:, :], tt[:-1, :])
-        e = dk | dz
-        edge[1:, :] |= e
-        edge[:-1, :] |= e
-        # nothing to anti-alias between two far, unlit surfaces
-        edge &= (tt < cfg.imaging.light_cutoff * 1.3 + 0.6) | np.roll(tt < 3, 1, axis=1)
+        for a, b, ea, eb in ((key2[:, 1:], key2[:, :-1], (slice(None), slice(1, None)), (slice(None), slice(0, -1))),
+                             (key2[1:, :], key2[:-1, :], (slice(1, None), slice(None)), (slice(0, -1), slice(None)))):
+            ta, tb = tt[ea], tt[eb]
+            e = ((a != b) | (np.abs(ta - tb) > 0.02 * np.minimum(ta, tb))) & (lit[ea] | lit[eb])
+            edge[ea] |= e
+            edge[eb] |= e
         idx = np.nonzero(edge.reshape(-1))[0]
         if len(idx):
             acc = np.zeros((len(idx), 3), np.float32)
+            base = rgb[idx]
+            kc = key[idx]
             offs = (np.arange(n_ss) + 0.5) / n_ss - 0.5
             for dv in offs:
                 for du in offs:
-                    ds = _pixel_dirs(calib, R, du, dv, idx)
-                    hs = fs.trace(o, ds)
-                    acc += _shade(fs, o, ds, hs, light, light_axes, cfg, rng)
+                    ps = pix[idx] + np.array([du, dv], np.float32)
+                    ds = _unit_dirs(calib, ps) @ R.T
+                    hs = fs.trace(o, ds, ps, boxes)
+                    ks = np.where(hs.seed >= 0, hs.seed, -(hs.cls.astype(np.int64) * 1_000_000 + hs.obj + 2))
+                    same = ks == kc
+                    acc[same] += base[same]
+                    diff = np.nonzero(~same)[0]
+                    if len(diff):
+                        sub = _Hits(hs.t[diff], hs.cls[diff], hs.obj[diff], hs.prim[diff], hs.bary[diff],
+                                    hs.seed[diff])
+                        acc[diff] += _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng)
             rgb[idx] = acc / (n_ss * n_ss)
     return rgb.reshape(H, W, 3), seed_img, depth, h
 
 
+_GAMMA_LUT = np.round(255.0 * np.linspace(0, 1, 4096) ** (1 / 2.2)).astype(np.uint8)
+
+
 def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random.Generator, gain: float,
-             depth: np.ndarray | None) -> np.ndarray:
+             depth: np.ndarray | None, cache: dict) -> np.ndarray:
     """Sensor + ISP model: gain, vignetting, blur, noise, gamma, 8-bit (and optional JPEG)."""
     import cv2
 
     ic = cfg.imaging
     H, W = lin.shape[:2]
-    img = lin * gain
-    if ic.vignetting > 0:
+    key = ("vignette", calib, ic.vignetting)
+    vig = cache.get(key)
+    if vig is None:
         yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
         rn2 = ((xx - calib.cx) ** 2 + (yy - calib.cy) ** 2) / (0.25 * (W * W + H * H))
-        img *= (1 - ic.vignetting * rn2)[..., None]
+        vig = cache[key] = (1 - ic.vignetting * rn2).astype(np.float32)[..., None]
+    img = lin * (vig * np.float32(gain * ic.full_well))  # electrons
     if ic.motion_blur:
         z = np.nanmedian(depth) if depth is not None and np.isfinite(depth).any() else REF_DISTANCE
         blur_px = calib.fx * cfg.motion.speed * ic.exposure_time / max(float(z), 0.05)
@@ -477,11 +593,13 @@ def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random
             img = cv2.blur(img, (k, 1))
     if ic.psf_sigma_px > 0:
         img = cv2.GaussianBlur(img, (0, 0), ic.psf_sigma_px)
-    e = np.clip(img, 0, None) * ic.full_well
-    e = e + np.sqrt(e) * rng.standard_normal(e.shape, np.float32) + ic.read_noise * rng.standard_normal(e.shape,
-                                                                                                           np.float32)
-    v = np.clip(e / ic.full_well, 0, 1)
-    out = np.round(255.0 * v ** (1 / 2.2)).astype(np.uint8)
+    np.maximum(img, 0, out=img)
+    # shot + read noise as one Gaussian of the combined variance
+    noise = rng.standard_normal(img.shape, np.float32)
+    noise *= np.sqrt(img + np.float32(ic.read_noise ** 2))
+    img += noise
+    code = np.clip(img * np.float32(4095.0 / ic.full_well), 0, 4095).astype(np.int16)
+    out = _GAMMA_LUT[code]
     if ic.jpeg_quality is not None:
         ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(ic.jpeg_quality)])
         if ok:
@@ -523,7 +641,17 @@ def _instances(fs: _FrameScene, seed_img: np.ndarray, centers_now: np.ndarray, T
     dv = (c_world - o).astype(np.float32)
     dist = np.linalg.norm(dv, axis=1)
     hc = fs.trace(o.astype(np.float32)[None, :], (dv / dist[:, None]).astype(np.float32))
-    visible = (hc.seed == ids) & (hc.t <= dist + 1e-5)
+    ray_ok = (hc.seed == ids) & (hc.t <= dist + 1e-5)
+    # ... and the pixel that contains the projected centre shows this seed (a seed can be hit by the
+    # exact centre ray while the pixel-centre ray, up to half a pixel away, meets a neighbour)
+    cu = np.floor(u + 0.5).astype(np.int64)
+    cr = np.floor(v + 0.5).astype(np.int64)
+    inside = (cu >= 0) & (cu < W) & (cr >= 0) & (cr < H)
+    pix_ok = np.zeros(K, bool)
+    pix_ok[inside] = seed_img[cr[inside], cu[inside]] == ids[inside]
+    visible = ray_ok & pix_ok
+    fs.stats["center_ray_visible"] = fs.stats.get("center_ray_visible", 0) + int(ray_ok.sum())
+    fs.stats["center_visible"] = fs.stats.get("center_visible", 0) + int(visible.sum())
     inst = Instances(
         label=np.arange(1, K + 1, dtype=np.uint16), seed_id=world.seeds.seed_id[ids].astype(np.int64),
         panicle_id=world.seeds.panicle_id[ids].astype(np.int64), boxes=np.column_stack([x0, y0, x1, y1]),
@@ -555,7 +683,7 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
     out = {}
     for name, T in (("left", T_l), ("right", T_r)):
         lin, seed_img, depth, _ = _render_camera(fs, T, calib, cfg, rng, light, light_axes)
-        img = _develop(lin, calib, cfg, rng, gain, depth)
+        img = _develop(lin, calib, cfg, rng, gain, depth, world.cache)
         labels, inst = _instances(fs, seed_img, centers, T, calib)
         out[name] = (img, labels, inst, depth)
     return RenderedStereo(

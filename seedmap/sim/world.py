@@ -155,16 +155,22 @@ def _sway_params(rng: np.random.Generator, n: int, amp_deg: float, cfg: SimConfi
 # ------------------------------------------------------------------------------------------------
 
 
-def _frame_from_axis(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A random rotation whose third column is ``a`` (unit)."""
-    tmp = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
+def _frames_from_axes(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``(N, 3, 3)`` random rotations whose third columns are the unit vectors ``a`` (N, 3)."""
+    a = np.asarray(a, float).reshape(-1, 3)
+    tmp = np.where((np.abs(a[:, 0]) < 0.9)[:, None], np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
     u = np.cross(a, tmp)
-    u /= np.linalg.norm(u)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
     w = np.cross(a, u)
-    th = rng.uniform(0, 2 * np.pi)
+    th = rng.uniform(0, 2 * np.pi, len(a))[:, None]
     u2 = np.cos(th) * u + np.sin(th) * w
     w2 = np.cross(a, u2)
-    return np.column_stack([u2, w2, a])
+    return np.stack([u2, w2, a], axis=2)
+
+
+def _frame_from_axis(a: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A random rotation whose third column is ``a`` (unit)."""
+    return _frames_from_axes(a[None, :], rng)[0]
 
 
 def _envelope(s: np.ndarray, R: float) -> np.ndarray:
@@ -202,63 +208,73 @@ class _PanicleSeeds:
 
 def _grow_panicle(rng: np.random.Generator, cfg: SimConfig, n_target: int, L: float, W: float,
                   loose: bool) -> _PanicleSeeds:
-    """Seeds of one panicle in its local frame (rachis along +z from the origin)."""
+    """Seeds of one panicle in its local frame (rachis along +z from the origin).
+
+    Primary branches leave the rachis in a golden-angle spiral and end on a spindle-shaped envelope.
+    Candidate seed positions fill the envelope (compact panicles) or tubes around the outer part
+    of the branches (loose panicles); dart throwing keeps them about one seed diameter apart,
+    outermost first, so the visible surface is densely packed and inner layers fill only for large
+    counts. Where the envelope cannot hold ``n_target`` seeds it is enlarged a little.
+    """
     pc = cfg.panicle
-    R = W / 2
     d_mean = rng.uniform(pc.seed_diameter_min, pc.seed_diameter_max)
-    # primary branches in whorls along the rachis, golden-angle phyllotaxis
-    step = rng.uniform(0.004, 0.006) if not loose else rng.uniform(0.009, 0.014)
-    n_br = max(6, int(L * 0.92 / step))
-    h0 = np.sort(rng.uniform(0.04 * L, 0.95 * L, n_br))
-    phi = np.arange(n_br) * 2.39996 + rng.normal(0, 0.3, n_br)
-    rise_ang = np.radians(rng.uniform(25, 45, n_br) if not loose else rng.uniform(35, 60, n_br))
-    r_here = np.maximum(_envelope(h0 / L, R), 0.006)
-    h1 = np.minimum(h0 + r_here / np.tan(rise_ang), L * 1.0)
-    r_end = np.maximum(_envelope(h1 / L, R), 0.5 * d_mean) * rng.uniform(0.8, 1.0, n_br)
-    radial = np.stack([np.cos(phi), np.sin(phi), np.zeros(n_br)], 1)
-    p_start = np.stack([np.zeros(n_br), np.zeros(n_br), h0], 1)
-    p_end = radial * r_end[:, None] + np.stack([np.zeros(n_br), np.zeros(n_br), h1], 1)
-    # candidate seeds around the outer part of every branch
-    m = int(np.ceil(3.5 * n_target / n_br))
-    t = 1.0 - rng.uniform(0, 1, (n_br, m)) ** 1.6 * 0.65
-    cand = p_start[:, None, :] + t[..., None] * (p_end - p_start)[:, None, :]
-    tube = (0.45 * r_end if not loose else 0.28 * r_end)[:, None, None]
-    cand = cand + rng.normal(0, 1, cand.shape) * tube * 0.6
-    cand = cand.reshape(-1, 3)
-    branch_of = np.repeat(np.arange(n_br), m)
-    # keep inside the spindle (project outliers onto it) and away from the rachis
-    h = cand[:, 2]
-    ok = (h > 0.02 * L) & (h < 0.995 * L)
-    cand, branch_of = cand[ok], branch_of[ok]
-    h = cand[:, 2]
-    rr = np.linalg.norm(cand[:, :2], axis=1)
-    env = np.maximum(_envelope(h / L, R), 0.6 * d_mean)
-    scale = np.where(rr > env - 0.5 * d_mean, (env - 0.5 * d_mean * rng.uniform(0.5, 1.2, len(rr))) /
-                     np.maximum(rr, 1e-9), 1.0)
-    cand[:, :2] *= np.clip(scale, 0, None)[:, None]
-    rr = np.linalg.norm(cand[:, :2], axis=1)
-    inner = rr > 0.8 * d_mean
-    cand, branch_of, rr, env = cand[inner], branch_of[inner], rr[inner], env[inner]
-    # outer seeds first: the visible surface fills densely, the interior only for big counts
-    key = (env - rr) / d_mean + rng.uniform(0, 0.6, len(rr))
-    order = np.argsort(key)
-    keep = _thin(cand, order, 0.88 * d_mean, n_target)
+    step = rng.uniform(0.004, 0.006) if not loose else rng.uniform(0.008, 0.012)
+    rise_lo, rise_hi = (25, 45) if not loose else (35, 60)
+    grow = 1.0
+    for _attempt in range(4):
+        R = W / 2 * grow
+        Lg = L * grow ** 0.5
+        n_br = max(6, int(Lg * 0.92 / step))
+        h0 = np.sort(rng.uniform(0.04 * Lg, 0.95 * Lg, n_br))
+        phi = np.arange(n_br) * 2.39996 + rng.normal(0, 0.3, n_br)
+        rise_ang = np.radians(rng.uniform(rise_lo, rise_hi, n_br))
+        r_here = np.maximum(_envelope(h0 / Lg, R), 0.006)
+        h1 = np.minimum(h0 + r_here / np.tan(rise_ang), Lg)
+        r_end = np.maximum(_envelope(h1 / Lg, R), 0.5 * d_mean) * rng.uniform(0.85, 1.0, n_br)
+        radial = np.stack([np.cos(phi), np.sin(phi), np.zeros(n_br)], 1)
+        p_start = np.stack([np.zeros(n_br), np.zeros(n_br), h0], 1)
+        p_end = radial * r_end[:, None] + np.stack([np.zeros(n_br), np.zeros(n_br), h1], 1)
+        m = int(np.ceil(5.0 * n_target / n_br))
+        # candidates around the outer 65 % of each branch: tubes (loose) or wide fans (compact)
+        t = 1.0 - rng.uniform(0, 1, (n_br, m)) ** 1.5 * 0.65
+        cand = p_start[:, None, :] + t[..., None] * (p_end - p_start)[:, None, :]
+        spread = (0.9 * r_end if not loose else 0.35 * r_end)[:, None, None]
+        cand = (cand + rng.normal(0, 1, cand.shape) * spread * 0.5).reshape(-1, 3)
+        h = cand[:, 2]
+        ok = (h > 0.02 * Lg) & (h < 0.995 * Lg)
+        cand = cand[ok]
+        h = cand[:, 2]
+        rr = np.linalg.norm(cand[:, :2], axis=1)
+        env = np.maximum(_envelope(h / Lg, R), 0.6 * d_mean)
+        outside = rr > env - 0.5 * d_mean
+        target_r = env - 0.5 * d_mean * rng.uniform(0.6, 1.3, len(rr))
+        scale = np.where(outside, target_r / np.maximum(rr, 1e-9), 1.0)
+        cand[:, :2] *= np.clip(scale, 0, None)[:, None]
+        rr = np.linalg.norm(cand[:, :2], axis=1)
+        inner = rr > 0.9 * d_mean
+        cand, rr, env = cand[inner], rr[inner], env[inner]
+        key = (env - rr) / d_mean + rng.uniform(0, 0.5, len(rr))
+        keep = _thin(cand, np.argsort(key), 0.97 * d_mean, n_target)
+        if len(keep) >= 0.97 * n_target:
+            break
+        grow *= 1.12
     xyz = cand[keep]
     n = len(xyz)
-    # seed shape and orientation: long axis outward and somewhat upward
-    d = np.clip(d_mean * rng.normal(1.0, 0.07, n), pc.seed_diameter_min * 0.9, pc.seed_diameter_max * 1.1)
-    radii = (d / 2)[:, None] * np.array([1.0, 0.86, 1.1]) * rng.normal(1.0, 0.04, (n, 3))
+    # mean diameter (2 x mean semi-axis) per seed within [seed_diameter_min, seed_diameter_max];
+    # grains are slightly flattened spheroids, the long axis pointing out of the panicle
+    d = np.clip(d_mean * rng.normal(1.0, 0.07, n), pc.seed_diameter_min, pc.seed_diameter_max)
+    shape = np.array([1.0, 0.86, 1.1]) * rng.normal(1.0, 0.04, (n, 3))
+    radii = (d / 2)[:, None] * shape / shape.mean(axis=1, keepdims=True)
     out = np.column_stack([xyz[:, :2], np.zeros(n)])
     out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-9)
     long_ax = out + np.array([0, 0, 0.6]) + rng.normal(0, 0.25, (n, 3))
     long_ax /= np.linalg.norm(long_ax, axis=1, keepdims=True)
-    axes = np.stack([_frame_from_axis(a, rng) for a in long_ax])
+    axes = _frames_from_axes(long_ax, rng)
     depth = (env[keep] - rr[keep]) / d_mean  # in seed diameters below the envelope
-    ao = np.clip(1.0 - 0.28 * depth, 0.25, 1.0) * rng.uniform(0.9, 1.0, n)
-    # rachis and visible branches (thin cylinders)
+    ao = np.clip(1.0 - 0.25 * depth, 0.25, 1.0) * rng.uniform(0.9, 1.0, n)
     rv, rf = [], []
     off = 0
-    v, f = cylinder(np.zeros(3), np.array([0, 0, 0.97 * L]), 0.0022, 0.0012, sides=6)
+    v, f = cylinder(np.zeros(3), np.array([0, 0, 0.97 * Lg]), 0.0022, 0.0012, sides=6)
     rv.append(v)
     rf.append(f)
     off += len(v)
