@@ -259,8 +259,13 @@ class RosbagSequence:
         self._conn = {}
         seen: dict[tuple[str, int], int] = {}
         info_msgs: dict[str, object] = {}
+        from tqdm import tqdm
+
+        total = counts[left_topic] + counts[right_topic]
         try:
-            for conn, t_ns, raw in reader.messages(connections=conns + info_conns):
+            for conn, t_ns, raw in tqdm(reader.messages(connections=conns + info_conns), desc="indexing bag",
+                                        total=total + sum(counts.get(t, 0) for t in {info_l, info_r} if t),
+                                        unit="msg", leave=False, disable=total < 2000):
                 if conn.topic in (info_l, info_r):
                     if conn.topic not in info_msgs:
                         info_msgs[conn.topic] = reader.deserialize(raw, conn.msgtype)
