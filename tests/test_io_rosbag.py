@@ -317,3 +317,23 @@ def test_stereo_size_mismatch_in_bag(tmp_path):
     calib.write_text(f"fx: {FX}\nfy: {FX}\ncx: {CX}\ncy: {CY}\nbaseline_m: 0.2\nimage_width: {W}\nimage_height: {H}\n")
     with RosbagSequence(path, calib=calib) as seq, pytest.raises(InputError, match="differ in size"):
         seq[0]
+
+
+@pytest.mark.parametrize("kind", ["ros1", "sqlite3", "mcap"])
+def test_cut_bags_only_raise_seedmap_errors(tmp_path, kind):
+    """Bags cut at many points: either they still open and read, or a one-line SeedmapError - nothing else."""
+    bag = write_bag(_bag_path(tmp_path, kind), kind, n=3)
+    target = bag if bag.is_file() else next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
+    data = target.read_bytes()
+    outcomes = set()
+    for frac in np.linspace(0.05, 0.98, 12):
+        target.write_bytes(data[: int(len(data) * frac)])
+        try:
+            with RosbagSequence(bag) as seq:
+                for i in range(len(seq)):
+                    seq[i]
+            outcomes.add("ok")
+        except SeedmapError as e:
+            assert "\n" not in str(e)
+            outcomes.add("error")
+    assert "error" in outcomes

@@ -351,10 +351,14 @@ class RosbagSequence:
         _, t_ns, occ = entry
         conn = self._conn[topic]
         k = 0
-        for c, _, raw in self._reader.messages(connections=[conn], start=t_ns, stop=t_ns + 1):
-            if k == occ:
-                return self._reader.deserialize(raw, c.msgtype)
-            k += 1
+        try:
+            for c, _, raw in self._reader.messages(connections=[conn], start=t_ns, stop=t_ns + 1):
+                if k == occ:
+                    return self._reader.deserialize(raw, c.msgtype)
+                k += 1
+        except Exception as e:
+            raise InputError(f"could not read {topic} at bag time {t_ns} ns ({type(e).__name__}: {str(e)[:100]}); "
+                             "the bag may be damaged", self.path) from None
         raise InputError(f"message of {topic} at bag time {t_ns} ns vanished (bag changed while open?)", self.path)
 
     def _decode(self, topic: str, msg) -> np.ndarray:
