@@ -201,39 +201,47 @@ def _calib_from_P(P1: np.ndarray, P2: np.ndarray, size: tuple[int, int], src: Pa
         raise InputError(str(e), src) from None
 
 
+def _rectification(rig: StereoRig, alpha: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``R1, R2, P1, P2``: the file's own rectification, else OpenCV's (zero disparity at infinity)."""
+    if rig.rect is not None:
+        R1, R2, P1, P2 = (np.ascontiguousarray(a, float) for a in rig.rect)
+        return R1.reshape(3, 3), R2.reshape(3, 3), P1.reshape(3, 4), P2.reshape(3, 4)
+    size = rig.left.size
+    try:
+        if rig.left.distortion == "equidistant":
+            R1, R2, P1, P2, _ = cv2.fisheye.stereoRectify(
+                rig.left.K, rig.left.D[:4], rig.right.K, rig.right.D[:4], size, rig.R, rig.T.reshape(3, 1),
+                flags=cv2.CALIB_ZERO_DISPARITY, newImageSize=size, balance=float(alpha), fov_scale=1.0)
+        else:
+            R1, R2, P1, P2, *_ = cv2.stereoRectify(
+                rig.left.K, rig.left.D, rig.right.K, rig.right.D, size, rig.R, rig.T.reshape(3, 1),
+                flags=cv2.CALIB_ZERO_DISPARITY, alpha=float(alpha), newImageSize=size)
+    except Exception as e:  # cv2.error, or SystemError from the bindings
+        lines = str(e).strip().splitlines()
+        raise InputError(f"OpenCV could not rectify this rig ({lines[-1] if lines else type(e).__name__})",
+                         rig.source) from None
+    return (np.asarray(R1, float), np.asarray(R2, float), np.asarray(P1, float).reshape(3, 4),
+            np.asarray(P2, float).reshape(3, 4))
+
+
 def rectify(rig: StereoRig, alpha: float = 0.0) -> tuple[StereoCalib, RectifyMaps | None]:
     """Rectified calibration and the remap tables of a rig (``None`` maps: images already rectified).
 
     ``alpha`` is OpenCV's free scaling (0: only valid pixels, no black borders - what seed detectors want;
     1: keep every source pixel). Uses the file's own rectification (``rig.rect``) when it has one, else
     ``cv2.stereoRectify`` (``cv2.fisheye.stereoRectify`` for equidistant lenses) with zero disparity at
-    infinity (same ``cx`` in both images).
+    infinity (same ``cx`` in both images). Compute it once per sequence; :meth:`RectifyMaps.apply` per pair.
     """
     check_rig(rig)
-    src = rig.source
     size = rig.left.size
     if rig.is_rectified and rig.rect is None:
         K = rig.left.K
         return StereoCalib(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
                            baseline=float(-rig.T[0]), width=size[0], height=size[1]), None
-    if rig.rect is not None:
-        R1, R2, P1, P2 = (np.ascontiguousarray(a, float) for a in rig.rect)
-    else:
-        try:
-            if rig.left.distortion == "equidistant":
-                R1, R2, P1, P2, _ = cv2.fisheye.stereoRectify(
-                    rig.left.K, rig.left.D[:4], rig.right.K, rig.right.D[:4], size, rig.R, rig.T.reshape(3, 1),
-                    flags=cv2.CALIB_ZERO_DISPARITY, newImageSize=size, balance=float(alpha), fov_scale=1.0)
-            else:
-                R1, R2, P1, P2, *_ = cv2.stereoRectify(
-                    rig.left.K, rig.left.D, rig.right.K, rig.right.D, size, rig.R, rig.T.reshape(3, 1),
-                    flags=cv2.CALIB_ZERO_DISPARITY, alpha=float(alpha), newImageSize=size)
-        except cv2.error as e:
-            raise InputError(f"OpenCV could not rectify this rig ({str(e).strip().splitlines()[-1]})", src) from None
-    calib = _calib_from_P(P1, P2, size, src)
+    R1, R2, P1, P2 = _rectification(rig, alpha)
+    calib = _calib_from_P(P1, P2, size, rig.source)
     maps = []
     for cam, Ri, Pi in ((rig.left, R1, P1), (rig.right, R2, P2)):
-        Pi = np.asarray(Pi, float).reshape(3, 4)
         if cam.distortion == "equidistant":
             m = cv2.fisheye.initUndistortRectifyMap(cam.K, cam.D[:4], Ri, Pi[:3, :3], size, cv2.CV_16SC2)
         else:
@@ -243,21 +251,13 @@ def rectify(rig: StereoRig, alpha: float = 0.0) -> tuple[StereoCalib, RectifyMap
 
 
 def rectified_rotation(rig: StereoRig, alpha: float = 0.0) -> np.ndarray:
-    """``R1``: rotation from the raw left camera frame to the rectified left frame (``x_rect = R1 x_raw``)."""
+    """``R1``: rotation from the raw left camera frame to the rectified left frame (``x_rect = R1 x_raw``).
+
+    Poses of the raw left camera become poses of the rectified one as ``T_world_rect = T_world_raw @ [R1^T | 0]``.
+    """
     if rig.is_rectified and rig.rect is None:
         return np.eye(3)
-    if rig.rect is not None:
-        return np.asarray(rig.rect[0], float).reshape(3, 3)
-    size = rig.left.size
-    if rig.left.distortion == "equidistant":
-        R1, *_ = cv2.fisheye.stereoRectify(rig.left.K, rig.left.D[:4], rig.right.K, rig.right.D[:4], size, rig.R,
-                                           rig.T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, newImageSize=size,
-                                           balance=float(alpha), fov_scale=1.0)
-    else:
-        R1, *_ = cv2.stereoRectify(rig.left.K, rig.left.D, rig.right.K, rig.right.D, size, rig.R,
-                                   rig.T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=float(alpha),
-                                   newImageSize=size)
-    return np.asarray(R1, float)
+    return _rectification(rig, alpha)[0]
 
 
 # ----------------------------------------------------------------------------------------------
