@@ -19,6 +19,7 @@
                                     box = inclusive-exclusive pixel bounds of the visible mask;
                                     (u, v) = projection of the seed's true 3D centre in that frame;
                                     center_visible = 1 when a ray to the 3D centre meets this seed first
+                                    and the pixel containing (u, v) (rounded) shows this seed
         config.yaml                 the generator config that produced the dataset
 """
 
