@@ -316,6 +316,7 @@ def test_real_kimera_stereo_tracker_triangulates_known_depths():
     f = REAL / "kimera_stereo_fixtures" / "ForStereoTracker"
     rig = load_rig(f / "camLeft.yaml", f / "camRight.yaml")
     assert rig.baseline == pytest.approx(96.0, abs=1e-3)
+    assert any("millimetres" in w for w in rig.warnings)  # 96 "m": these fixtures use other units
 
     def rd(name):
         return np.loadtxt(f / name, skiprows=1)

@@ -713,7 +713,17 @@ def load_rig(path: str | Path, right: str | Path | None = None,
     """Read any supported calibration file (``right``: the second file of per-camera formats).
 
     ``image_size`` ``(w, h)`` is needed only by formats that do not store it (KITTI odometry, GTSAM).
+    Oddities that are not errors (a baseline that looks like millimetres) land in ``rig.warnings``.
     """
+    rig = _load_rig(path, right, image_size, kitti_cams)
+    if rig.baseline > 2.0:
+        rig.warnings.append(f"{path}: stereo baseline is {rig.baseline:.4g} m - is the calibration in millimetres? "
+                            "seedmap works in metres")
+    return rig
+
+
+def _load_rig(path: str | Path, right: str | Path | None, image_size: tuple[int, int] | None,
+              kitti_cams: tuple[int, int]) -> StereoRig:
     path = Path(path)
     if not path.is_file():
         raise InputError("calibration file not found", path)

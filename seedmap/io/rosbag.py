@@ -315,6 +315,7 @@ class RosbagSequence:
             rig = self._rig_from_camera_info(info_l, info_r, info_msgs)
         self.rig = rig
         self.calib, self.maps = rectify(rig, alpha=alpha)
+        self.warnings.extend(rig.warnings)
 
     def _first_size(self) -> tuple[int, int]:
         left, _ = self._load(0)
