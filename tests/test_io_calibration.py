@@ -237,6 +237,10 @@ def test_seedmap_calib_round_trip(tmp_path):
     c = StereoCalib(400.0, 401.0, 300.5, 200.25, 0.11, 640, 480)
     save_calib_yaml(c, tmp_path / "calib.yaml")
     assert rectify(load_rig(tmp_path / "calib.yaml"))[0] == c
+    p = tmp_path / "calib.yaml"
+    p.write_text(p.read_text().replace("baseline_m: 0.11", "baseline_m: -0.11"))
+    with pytest.raises(InputError, match="swapped cameras or a sign error"):
+        load_rig(p)
 
 
 def test_swapped_cameras_and_wrong_sign_are_explained(tmp_path):

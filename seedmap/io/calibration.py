@@ -423,6 +423,10 @@ def _rig_from_rect(K1, D1, R1, P1, K2, D2, R2, P2, size1, size2, model: str, pat
 
 def parse_seedmap_calib(d: dict, path: Path) -> StereoRig:
     """seedmap's own rectified ``calib.yaml``."""
+    b = _num(d, "baseline_m", path)
+    if b <= 0:
+        raise InputError(f"baseline_m is {b:g}: it must be positive (right camera at +x of the left); a negative "
+                         "value means swapped cameras or a sign error", path)
     try:
         calib = StereoCalib(fx=_num(d, "fx", path), fy=_num(d, "fy", path), cx=_num(d, "cx", path),
                             cy=_num(d, "cy", path), baseline=_num(d, "baseline_m", path),
