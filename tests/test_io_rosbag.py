@@ -258,6 +258,10 @@ def test_bag_info_and_cli(tmp_path):
                        env={"COLUMNS": "200", "PATH": "/usr/bin:/bin"})
     assert r.returncode == 0, r.stderr
     assert "/stereo/left/image_rect" in r.stdout and "sensor_msgs/msg/Image" in r.stdout
+    r = subprocess.run([sys.executable, "-m", "seedmap.cli", "bag-info", str(bag), "--sequence"], capture_output=True,
+                       text=True, env={"COLUMNS": "200", "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 0, r.stderr
+    assert "3 pairs, 0 dropped" in r.stdout and "baseline=0.1200 m" in r.stdout
     r = subprocess.run([sys.executable, "-m", "seedmap.cli", "bag-info", str(tmp_path / "nope.bag")],
                        capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("\n") == 1
