@@ -79,6 +79,12 @@ class SemanticConfig(ConfigModel):
     neighbours: Literal["all", "overlap"] = "all"
     temporal_prediction: bool = False
     prediction_tol_px: float = 150.0
+    #: "none" = the paper (one gated assignment on its cost); "consensus" = our option, see module doc
+    refine: Literal["none", "consensus"] = "none"
+    consensus_k: int = 15
+    consensus_tol_px: float = 4.3
+    consensus_weight: float = 10.0
+    consensus_iters: int = 2
     chunk: int = 512
 
 
@@ -224,6 +230,76 @@ def assign(cost: np.ndarray, feasible: np.ndarray, max_cost: float) -> Matches:
     return assign_sparse(cost.shape[0], cost.shape[1], ia, ib, cost[ia, ib], max_cost)
 
 
+def candidate_pairs(ka: np.ndarray, kb: np.ndarray, max_dy: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(i, j)`` with ``|kb[j, 1] - ka[i, 1]| <= max_dy`` without an N x M matrix."""
+    order = np.argsort(kb[:, 1], kind="stable")
+    vb = kb[order, 1]
+    lo = np.searchsorted(vb, ka[:, 1] - max_dy, side="left")
+    hi = np.searchsorted(vb, ka[:, 1] + max_dy, side="right")
+    cnt = hi - lo
+    total = int(cnt.sum())
+    if total == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ia = np.repeat(np.arange(len(ka)), cnt)
+    offs = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    return ia, order[lo[ia] + offs]
+
+
+def _best_per_row(ia: np.ndarray, ib: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every distinct ``ia`` the pair with the lowest cost (O(K) after one stable sort)."""
+    if len(ia) == 0:
+        return ia, ib
+    o = np.argsort(ia, kind="stable")
+    ia, ib, c = ia[o], ib[o], c[o]
+    starts = np.r_[0, np.flatnonzero(np.diff(ia)) + 1]
+    counts = np.diff(np.r_[starts, len(ia)])
+    mins = np.minimum.reduceat(c, starts)
+    pos = np.flatnonzero(c == np.repeat(mins, counts))
+    grp = np.repeat(np.arange(len(starts)), counts)[pos]
+    first = pos[np.r_[True, np.diff(grp) != 0]]
+    return ia[first], ib[first]
+
+
+def consensus_assign(ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndarray, cost: np.ndarray,
+                     cfg: SemanticConfig, scale: float) -> Matches:
+    """Our option on top of the paper's cost: local displacement consensus.
+
+    Panicles are rigid and smooth, so the image displacement (disparity, or the frame-to-frame
+    shift) of a seed is close to that of its neighbours. Stage 1 keeps the *mutual* lowest-cost
+    pairs of the paper's cost; the displacement predicted for every keypoint of A is the median
+    displacement of its ``consensus_k`` nearest stage-1 matches (robust to the many stage-1
+    errors); stage 2 keeps only candidates within ``consensus_tol_px`` (full-res px) of that
+    prediction, adds ``consensus_weight`` x the residual (full-res px) to the paper's cost and solves
+    the gated assignment; the prediction is re-estimated from the result ``consensus_iters`` times.
+    """
+    from scipy.spatial import cKDTree
+
+    n, m = len(ka), len(kb)
+    if len(ia) == 0:
+        return Matches()
+    a1, b1 = _best_per_row(ia, ib, cost)
+    b2, a2 = _best_per_row(ib, ia, cost)
+    best_a = np.full(m, -1)
+    best_a[b2] = a2
+    mutual = best_a[b1] == a1
+    ma, mb = a1[mutual], b1[mutual]
+    tol = cfg.consensus_tol_px / scale
+    out = Matches()
+    for _ in range(max(1, cfg.consensus_iters)):
+        if len(ma) == 0:
+            return Matches()
+        disp = kb[mb] - ka[ma]
+        k = min(cfg.consensus_k, len(ma))
+        _, nn = cKDTree(ka[ma]).query(ka, k)
+        pred = np.median(disp[np.asarray(nn).reshape(n, k)], axis=1)
+        res = np.hypot(*(kb[ib] - ka[ia] - pred[ia]).T)
+        keep = res <= tol
+        c2 = cost[keep] + cfg.consensus_weight * res[keep] * scale
+        out = assign_sparse(n, m, ia[keep], ib[keep], c2, cfg.max_cost + cfg.consensus_weight * cfg.consensus_tol_px)
+        ma, mb = out.idx_a, out.idx_b
+    return out
+
+
 def _inside(u: np.ndarray, width: int, border: float) -> np.ndarray:
     return (u >= border) & (u <= width - 1 - border)
 
@@ -248,13 +324,13 @@ def match_stereo_keypoints(
     fl, fr = kl * s, kr * s
     sa = neighbour_sums(fl, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk)
     sb = neighbour_sums(fr, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk)
-    disp = kl[:, 0][:, None] - kr[:, 0][None, :]
-    dyp = np.abs(kl[:, 1][:, None] - kr[:, 1][None, :])
-    feasible = (dyp <= g.stereo_max_dy_px) & (disp >= g.stereo_min_disparity_px)
-    feasible &= _inside(kl[:, 0], width, g.stereo_border_px)[:, None]
-    feasible &= _inside(kr[:, 0], width, g.stereo_border_px)[None, :]
-    ia, ib = np.nonzero(feasible)
+    ia, ib = candidate_pairs(kl, kr, g.stereo_max_dy_px)
+    ok = (kl[ia, 0] - kr[ib, 0]) >= g.stereo_min_disparity_px
+    ok &= _inside(kl[ia, 0], width, g.stereo_border_px) & _inside(kr[ib, 0], width, g.stereo_border_px)
+    ia, ib = ia[ok], ib[ok]
     cost = pair_cost(fl, fr, sa, sb, cfg, ia, ib)
+    if cfg.refine == "consensus":
+        return consensus_assign(kl, kr, ia, ib, cost, cfg, s)
     return assign_sparse(len(kl), len(kr), ia, ib, cost, cfg.max_cost)
 
 
@@ -282,16 +358,18 @@ def match_temporal_keypoints(
         vb = _inside(kb[:, 0] - predicted_shift, width, 0.0)
     sa = neighbour_sums(fa, cfg.delta_px, cfg.eps_px, va, chunk=cfg.chunk)
     sb = neighbour_sums(fb, cfg.delta_px, cfg.eps_px, vb, chunk=cfg.chunk)
-    du = kb[:, 0][None, :] - ka[:, 0][:, None]
-    dv = np.abs(kb[:, 1][None, :] - ka[:, 1][:, None])
-    feasible = (dv <= g.temporal_max_dy_px) & (g.travel_sign * du >= g.temporal_min_shift_px)
+    ia, ib = candidate_pairs(ka, kb, g.temporal_max_dy_px)
+    du = kb[ib, 0] - ka[ia, 0]
+    ok = g.travel_sign * du >= g.temporal_min_shift_px
     if cfg.temporal_prediction and predicted_shift is not None:
-        feasible &= np.abs(du - predicted_shift) <= cfg.prediction_tol_px / s
-    feasible &= _inside(ka[:, 0], width, g.temporal_border_px)[:, None]
-    feasible &= _inside(kb[:, 0], width, g.temporal_border_px)[None, :]
-    ia, ib = np.nonzero(feasible)
+        ok &= np.abs(du - predicted_shift) <= cfg.prediction_tol_px / s
+    ok &= _inside(ka[ia, 0], width, g.temporal_border_px) & _inside(kb[ib, 0], width, g.temporal_border_px)
+    ia, ib = ia[ok], ib[ok]
     cost = pair_cost(fa, fb, sa, sb, cfg, ia, ib)
-    m = assign_sparse(len(ka), len(kb), ia, ib, cost, cfg.max_cost)
+    if cfg.refine == "consensus":
+        m = consensus_assign(ka, kb, ia, ib, cost, cfg, s)
+    else:
+        m = assign_sparse(len(ka), len(kb), ia, ib, cost, cfg.max_cost)
     # post-filter on the vertical offset (facts.md: 60 px at full resolution)
     keep = np.abs(kb[m.idx_b, 1] - ka[m.idx_a, 1]) <= g.temporal_post_max_dy_px
     return Matches(m.idx_a[keep], m.idx_b[keep], m.cost[keep])

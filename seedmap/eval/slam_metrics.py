@@ -64,22 +64,29 @@ def _evo_traj(t: Trajectory):
 def ate_rmse(est: Trajectory, gt: Trajectory, align: str = "se3") -> float | None:
     """evo APE (translation, RMSE) of ``est`` vs ``gt`` (same length, frame-by-frame).
 
-    ``align="se3"``: Umeyama rigid alignment; ``"first"``: align the first poses only.
+    ``align="se3"``: rigid least-squares (Umeyama, no scale) alignment of the positions;
+    ``"first"``: align the first poses only.
     """
     from evo.core import metrics
 
     n = min(len(est), len(gt))
     if n < 3 and align == "se3" or n < 1:
         return None
-    e = _evo_traj(Trajectory(est.timestamps[:n], est.poses[:n]))
-    r = _evo_traj(Trajectory(gt.timestamps[:n], gt.poses[:n]))
+    poses = est.poses[:n]
     if align == "se3":
-        try:
-            e.align(r, correct_scale=False)
-        except Exception:  # degenerate (e.g. all positions equal): fall back to first-pose
-            e.align_origin(r)
+        # Umeyama/Kabsch on the positions (no scale). evo's own align() refuses (near-)collinear
+        # paths, which a straight row traversal is; the SVD solution is still the least-squares
+        # optimum there (the roll about the line is irrelevant to position errors).
+        from seedmap.slam.motion import kabsch
+
+        R, t = kabsch(est.positions[:n], gt.positions[:n])
     else:
-        e.align_origin(r)
+        A = gt.poses[0] @ invert(est.poses[0])
+        R, t = A[:3, :3], A[:3, 3]
+    A = np.eye(4)
+    A[:3, :3], A[:3, 3] = R, t
+    e = _evo_traj(Trajectory(est.timestamps[:n], A[None] @ poses))
+    r = _evo_traj(Trajectory(gt.timestamps[:n], gt.poses[:n]))
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((r, e))
     return float(ape.get_statistic(metrics.StatisticsType.rmse))
@@ -131,9 +138,10 @@ def compute_slam_metrics(
         range_length = float(gt.path_length()[-1])
     frac = (mdm / range_length) if range_length else None
     gt_mdm = gt_frac = ate = ate_first = rpe = ate_on = ate_frac = None
-    if gt is not None and len(gt) and len(est):
+    if gt is not None and len(gt):
         gt_mdm, _ = gt_validated_mdm(est, gt)
         gt_frac = (gt_mdm / range_length) if range_length else None
+    if gt is not None and len(gt) and len(est):
         ate = ate_rmse(est, gt, "se3")
         ate_first = ate_rmse(est, gt, "first")
         rpe = rpe_trans_rmse(est, gt)
