@@ -8,7 +8,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import yaml
 
 from seedmap.errors import ConfigError, InputError
 from seedmap.io import StereoSequence, detect_format, open_dataset

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -278,5 +277,3 @@ def test_real_world_quirk_yaml_1e_notation(tmp_path):
     rig = load_rig(p)
     assert rig.left.D[0] == pytest.approx(1e-5) and rig.baseline == pytest.approx(0.12)
 
-
-_ = Path  # keep the import for type readers
