@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q $(TORCH_PINS) || $(BIN)/python -m pip install -q "torch>=2.2,<3" "torchvision>=0.17,<1"
-	$(BIN)/python -m pip install -q -e '.[learned,dev]'
+	$(BIN)/python -m pip install -q -e '.[learned,cluster,dev]'
 	@touch $(STAMP)
 
 demo: setup
