@@ -42,7 +42,12 @@ class CloudConfig(ConfigModel):
 class SeedCentreConfig(ConfigModel):
     """3D seed centres from disparity inside each detected ellipse."""
 
-    min_valid_fraction: float = Field(0.3, ge=0, le=1, description="valid-disparity pixels needed in the ellipse")
+    method: Literal["disparity", "keypoints"] = Field(
+        "disparity", description="disparity = median SGBM disparity in the ellipse; keypoints = that median only "
+                                 "picks the matching right-image detection, whose ellipse centre gives the disparity")
+    match_dv_px: float = Field(1.5, gt=0, description="max row difference of a left/right keypoint match (px)")
+    match_dd_px: float = Field(4.0, gt=0, description="max difference from the SGBM disparity prior (px)")
+    min_valid_fraction: float = Field(0.2, ge=0, le=1, description="valid-disparity pixels needed in the ellipse")
     shrink: float = Field(0.7, gt=0, le=1, description="use the central part of the ellipse (axis scale)")
     surface_to_centre: bool = Field(True, description="push the visible-surface point back by the seed radius")
 

@@ -138,7 +138,7 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
             views.append(None)
             continue
         vc = _downsample_view(vc, cfg.cloud.voxel_size)
-        so = seed_centres(disp, sdet.left, ds.calib, cfg.seeds, cfg.cloud)
+        so = seed_centres(disp, sdet.left, ds.calib, cfg.seeds, cfg.cloud, sdet.right)
         reg_xyz = voxel_down(vc.xyz, cfg.registration.full_voxel)
         geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.xyz)
         views.append(PreparedView(vc, so, geo, len(sdet.left)))

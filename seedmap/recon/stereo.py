@@ -126,11 +126,42 @@ def _scaled_Q(calib: StereoCalib, step: int) -> np.ndarray:
     return Q
 
 
+def match_keypoints(uv_left: np.ndarray, prior: np.ndarray, right: Detections, cfg: SeedCentreConfig) -> np.ndarray:
+    """Disparity from left/right keypoint pairs: for each left keypoint with an SGBM prior
+    disparity, the right keypoint on the same row (|dv| <= match_dv_px) whose disparity is closest to
+    the prior (within match_dd_px); mutual-nearest only. NaN where no unambiguous match exists."""
+    from scipy.spatial import cKDTree
+
+    out = np.full(len(uv_left), np.nan)
+    if len(right) == 0 or len(uv_left) == 0:
+        return out
+    ok = np.isfinite(prior)
+    # predicted right position (u - d, v); nearest right keypoint in a metric that weighs rows
+    scale = cfg.match_dd_px / cfg.match_dv_px
+    pred = np.column_stack([uv_left[:, 0] - np.nan_to_num(prior), uv_left[:, 1] * scale])
+    kr = right.keypoints
+    tree = cKDTree(np.column_stack([kr[:, 0], kr[:, 1] * scale]))
+    dist, j = tree.query(pred[ok], distance_upper_bound=cfg.match_dd_px)
+    idx = np.flatnonzero(ok)
+    found = np.isfinite(dist)
+    idx, j = idx[found], j[found]
+    # mutual: each right keypoint used by its closest left prediction only
+    best = {}
+    for i, jj, dd in zip(idx, j, dist[found], strict=True):
+        if jj not in best or dd < best[jj][1]:
+            best[jj] = (i, dd)
+    for jj, (i, _) in best.items():
+        if abs(kr[jj, 1] - uv_left[i, 1]) <= cfg.match_dv_px:
+            out[i] = uv_left[i, 0] - kr[jj, 0]
+    return out
+
+
 def seed_centres(disp: np.ndarray, det: Detections, calib: StereoCalib, cfg: SeedCentreConfig,
-                 cloud: CloudConfig) -> SeedObservations:
+                 cloud: CloudConfig, right: Detections | None = None) -> SeedObservations:
     """3D centre of each detected seed: median valid disparity inside the (shrunk) ellipse at the
-    ellipse centre, triangulated; optionally pushed back along the ray by the seed radius
-    (the disparity measures the visible front surface, the centre lies ~one radius deeper)."""
+    ellipse centre (``method = keypoints``: refined by the matching right keypoint), triangulated;
+    optionally pushed back along the ray by the seed radius (the disparity measures the visible
+    front surface, the centre lies ~one radius deeper)."""
     lab = detection_label_image(disp.shape, det, cfg.shrink)
     valid = np.isfinite(disp)
     flat_lab = lab.reshape(-1)
@@ -150,6 +181,9 @@ def seed_centres(disp: np.ndarray, det: Detections, calib: StereoCalib, cfg: See
         a, b = bounds[k], bounds[k + 1]
         if b > a and good[k] >= cfg.min_valid_fraction * max(total[k], 1):
             med[k] = np.median(sorted_d[a:b])
+    if cfg.method == "keypoints" and right is not None:
+        kd = match_keypoints(det.keypoints, med, right, cfg)
+        med = kd  # seeds without an unambiguous right match are dropped: their SGBM depth is unreliable
     keep = np.isfinite(med) & (med > 0)
     uv = det.keypoints[keep]
     xyz = calib.triangulate(uv, uv[:, 0] - med[keep])
