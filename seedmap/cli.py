@@ -564,6 +564,29 @@ def bag_info_cmd(
                 console.print(f"warning: {w}")
 
 
+@app.command("batch")
+def batch_cmd(
+    field: Path = typer.Argument(..., help="Field folder: every dataset below it (any loader) is one range."),
+    out: Path = typer.Option(..., "--out", "-o", help="Results: out/<range path>/ + summary.csv/.md/.json."),
+    workers: int = typer.Option(1, "--workers", "-j", help="Ranges run in parallel (processes or Ray CPUs)."),
+    ray: Optional[str] = typer.Option(None, "--ray", help="Ray cluster address (auto, ray://host:10001) or "
+                                      "'local' to start one here (needs seedmap[cluster])."),
+    matcher: str = typer.Option("seeds", "--matcher", "-m", help="seeds | sift | orb | akaze | surf"),
+    detector: str = typer.Option("gt", "--detector", "-d", help="Seed detector for --matcher seeds (gt = oracle)."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """SLAM on every range of a field (resumable; failing ranges are recorded, not fatal)."""
+    from seedmap.batch import run_batch, summary_markdown
+
+    cfg = _slam_config(config, set_)
+    s = run_batch(field, out, matcher=matcher, detector=detector, config=cfg, workers=workers, ray=ray,
+                  progress=not quiet)
+    typer.echo(summary_markdown(s))
+    typer.echo(f"summary in {out / 'summary.md'} ({s.n_ok} ok, {s.n_failed} failed)")
+
+
 def main() -> None:
     """Console entry point: user errors become one line on stderr and exit code 2."""
     try:
