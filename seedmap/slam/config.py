@@ -18,9 +18,12 @@ from seedmap.config import ConfigModel
 class FrontendConfig(ConfigModel):
     """Frame-to-frame motion from matched 3D seeds: RANSAC over 3-point Kabsch fits."""
 
+    #: "translation": 1-point RANSAC translation, rotation left to the graph (see
+    #: seedmap.slam.motion.ransac_translation); "se3": 3-point RANSAC + Kabsch
+    motion_model: Literal["translation", "se3"] = "translation"
     ransac_iters: int = Field(300, ge=1)
     #: inlier threshold on the stereo reprojection error (max of |du_l|, |du_r|, |dv|), full-res px
-    ransac_reproj_px: float = Field(8.0, gt=0)
+    ransac_reproj_px: float = Field(3.0, gt=0)
     refine_iters: int = Field(3, ge=0)
 
 
@@ -31,7 +34,7 @@ class BackendConfig(ConfigModel):
     huber_k: float = Field(1.345, gt=0)
     prior_sigma_rot_rad: float = Field(1e-4, gt=0)
     prior_sigma_trans_m: float = Field(1e-4, gt=0)
-    between_sigma_rot_rad: float = Field(0.01, gt=0)
+    between_sigma_rot_rad: float = Field(0.005, gt=0)
     between_sigma_trans_m: float = Field(0.01, gt=0)
     min_observations: int = Field(2, ge=2)
     min_disparity_px: float = Field(20.0, ge=0)  # full-res px (facts.md)

@@ -33,7 +33,7 @@ from gtsam.symbol_shorthand import L, X
 from seedmap.associate.base import FULL_RES_WIDTH, FrameFeatures, Matcher
 from seedmap.records import Matches, StereoCalib, Trajectory
 from seedmap.slam.config import SlamConfig
-from seedmap.slam.motion import ransac_motion
+from seedmap.slam.motion import ransac_motion, ransac_translation
 
 
 @dataclass
@@ -206,8 +206,10 @@ class SemanticSlam:
             pa, pb = pa[both], pb[both]
             est = None
             if len(pa) >= 3:
-                est = ransac_motion(self.calib, self._prev_pts[pa], pts[pb], obs[pb], self.rng,
-                                    self.cfg.frontend.ransac_iters, self._reproj_px, self.cfg.frontend.refine_iters)
+                fe = self.cfg.frontend
+                fit = ransac_translation if fe.motion_model == "translation" else ransac_motion
+                est = fit(self.calib, self._prev_pts[pa], pts[pb], obs[pb], self.rng,
+                          fe.ransac_iters, self._reproj_px, fe.refine_iters)
             tm["motion"] = (time.perf_counter() - t0) * 1e3
             n_inl = 0 if est is None else int(est.inliers.sum())
             res.n_inliers = n_inl

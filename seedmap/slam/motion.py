@@ -106,3 +106,50 @@ def ransac_motion(
     T[:3, 3] = tb
     rms = float(np.sqrt(np.mean(e[mask] ** 2))) if mask.any() else float("inf")
     return MotionEstimate(T, mask, rms)
+
+
+def ransac_translation(
+    calib: StereoCalib,
+    pts_prev: np.ndarray,
+    pts_cur: np.ndarray,
+    obs_cur: np.ndarray,
+    rng: np.random.Generator,
+    iters: int = 100,
+    thresh_px: float = 3.0,
+    refine_iters: int = 3,
+) -> MotionEstimate | None:
+    """Robust translation-only ``T_prev_cur`` (rotation = identity) from K >= 1 matched 3D points.
+
+    Why: a side-looking camera travelling along a row sees seeds in a shallow depth band, where a
+    sideways translation and a yaw (or a vertical translation and a pitch) move the image almost
+    identically; a full 6-DoF fit between two frames then trades one for the other under small
+    non-rigid motion (wind sway of ~1 mm per frame gives ~1 degree rotation errors on the
+    simulated ranges). Between consecutive frames the rotation is tiny (horizontal travel, the
+    paper's prior), so the front-end estimates a 1-point-RANSAC translation (refined as the
+    median over inliers) and leaves the small rotation to the factor graph, where the
+    between-factor carries it as a prior with ``between_sigma_rot_rad``.
+    """
+    pp = np.asarray(pts_prev, float).reshape(-1, 3)
+    pc = np.asarray(pts_cur, float).reshape(-1, 3)
+    k = len(pp)
+    if k < 1:
+        return None
+    idx = rng.choice(k, size=min(iters, k), replace=False)
+    t = pp[idx] - pc[idx]  # hypotheses (H, 3): prev = cur + t
+    err = stereo_reproj_error(calib, pp[None] - t[:, None, :], obs_cur[None])
+    inl = err < thresh_px
+    mask = inl[int(np.argmax(inl.sum(1)))]
+    tb = t[int(np.argmax(inl.sum(1)))]
+    for _ in range(refine_iters):
+        if not mask.any():
+            break
+        tb = np.median(pp[mask] - pc[mask], axis=0)
+        new = stereo_reproj_error(calib, pp - tb, obs_cur) < thresh_px
+        if np.array_equal(new, mask):
+            break
+        mask = new
+    e = stereo_reproj_error(calib, pp - tb, obs_cur)
+    T = np.eye(4)
+    T[:3, 3] = tb
+    rms = float(np.sqrt(np.mean(e[mask] ** 2))) if mask.any() else float("inf")
+    return MotionEstimate(T, mask, rms)

@@ -1,0 +1,132 @@
+"""Benchmark of the semantic association and the SLAM back-end (CPU).
+
+Writes benchmarks/results/bench_slam.json:
+
+* association time (stereo + temporal) for 500 / 1,000 / 2,000 keypoints per image, for the
+  paper's method (``refine=none``) and the consensus option, on synthetic panicles at the default
+  1434 px width;
+* frames/s of association + motion + back-end (iSAM2) per frame on a short synthetic sequence;
+* the baseline measured in the same run: one SIFT detection + brute-force kNN match (cv2) of the
+  same stereo pair (seeds drawn as blobs); results are reported as ratios to it.
+
+Run: ``.venv/bin/python benchmarks/bench_slam.py [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from seedmap.associate.semantic import SeedMatcher, SemanticConfig
+from seedmap.records import Detections, StereoDetections
+from seedmap.slam.config import SlamConfig
+from seedmap.slam.core import SemanticSlam
+from seedmap.slam.synthetic import make_range, observe
+
+OUT = Path(__file__).parent / "results" / "bench_slam.json"
+
+
+def _subsample(d: StereoDetections, n: int, rng: np.random.Generator) -> StereoDetections:
+    """Keep the seeds whose ids are among ``n`` ids common to both images (same seeds left/right)."""
+    common = np.intersect1d(d.left.seed_ids, d.right.seed_ids)
+    keep = rng.choice(common, size=min(n, len(common)), replace=False)
+    sub = []
+    for det in (d.left, d.right):
+        idx = np.flatnonzero(np.isin(det.seed_ids, keep))
+        sub.append(det.subset(idx))
+    return StereoDetections(d.index, d.timestamp, sub[0], sub[1])
+
+
+def _blob_image(kp: np.ndarray, w: int, h: int, rng: np.random.Generator) -> np.ndarray:
+    img = np.zeros((h, w), np.uint8)
+    for (u, v), r, g in zip(kp, rng.uniform(2.0, 3.5, len(kp)), rng.integers(120, 255, len(kp)), strict=True):
+        cv2.circle(img, (int(round(u)), int(round(v))), int(round(r)), int(g), -1, cv2.LINE_AA)
+    return cv2.GaussianBlur(img, (3, 3), 0.8)
+
+
+def _time(fn, reps: int) -> float:
+    best = np.inf
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="fewer repetitions and frames")
+    args = ap.parse_args()
+    reps = 1 if args.quick else 3
+    rng = np.random.default_rng(0)
+    rg = make_range(rng, length=0.4, seeds_per_panicle=400)
+    calib = rg.calib
+    d0, d1 = observe(rg, 4, rng, miss=0.03), observe(rg, 5, rng, miss=0.03)
+
+    # baseline: one SIFT + brute-force kNN stereo match of a drawn stereo pair (same keypoints)
+    sub = _subsample(d1, 2000, rng)
+    left = _blob_image(sub.left.keypoints, calib.width, calib.height, rng)
+    right = _blob_image(sub.right.keypoints, calib.width, calib.height, rng)
+    sift = cv2.SIFT_create()
+    bf = cv2.BFMatcher(cv2.NORM_L2)
+
+    def sift_match() -> None:
+        _, da = sift.detectAndCompute(left, None)
+        _, db = sift.detectAndCompute(right, None)
+        if da is not None and db is not None:
+            bf.knnMatch(da, db, k=2)
+
+    t_sift = _time(sift_match, reps)
+    res = {"machine": platform.processor() or platform.machine(), "image": [calib.width, calib.height],
+           "baseline_sift_bf_stereo_s": t_sift, "association": []}
+    for mode in ("none", "consensus"):
+        cfg = SemanticConfig(refine=mode)
+        for n in (500, 1000, 2000):
+            a, b = _subsample(d0, n, np.random.default_rng(n)), _subsample(d1, n, np.random.default_rng(n + 1))
+            m = SeedMatcher(calib, cfg=cfg)
+            fa = m.features_from_detections(a)
+            t_st = _time(lambda: m.features_from_detections(b), reps)
+            fb = m.features_from_detections(b)
+            t_tm = _time(lambda: m.match_temporal(fa, fb), reps)
+            st = fb.stereo
+            prec = float(np.mean(fb.seed_ids_left[st.idx_a] == fb.seed_ids_right[st.idx_b])) if len(st) else None
+            row = {"refine": mode, "keypoints_left": len(b.left), "stereo_s": t_st, "temporal_s": t_tm,
+                   "stereo_vs_sift_ratio": t_st / t_sift, "stereo_precision_synthetic": prec}
+            res["association"].append(row)
+            print(row, flush=True)
+
+    # per-frame pipeline on a short synthetic sequence (~1,000 keypoints per image)
+    for mode in ("none", "consensus"):
+        cfg = SlamConfig()
+        cfg.association = SemanticConfig(refine=mode)
+        rng2 = np.random.default_rng(1)
+        rs = make_range(rng2, length=0.2 if args.quick else 0.4, seeds_per_panicle=150)
+        m = SeedMatcher(rs.calib, cfg=cfg.association)
+        slam = SemanticSlam(rs.calib, m, cfg, first_pose=rs.gt.poses[0])
+        dets = [observe(rs, i, rng2) for i in range(len(rs.gt))]
+        t0 = time.perf_counter()
+        ok = 0
+        for d in dets:
+            r = slam.register_frame(m.features_from_detections(d))
+            ok += r.ok
+            if not r.ok:
+                break
+        dt = time.perf_counter() - t0
+        row = {"refine": mode, "frames": len(dets), "frames_ok": ok, "keypoints_per_image": int(np.mean([len(d.left) for d in dets])),
+               "frames_per_s": ok / dt, "ms_per_frame": 1e3 * dt / max(ok, 1),
+               "ms_per_frame_vs_sift_ratio": (dt / max(ok, 1)) / t_sift}
+        res.setdefault("pipeline", []).append(row)
+        print(row, flush=True)
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text(json.dumps(res, indent=2) + "\n")
+    print(f"wrote {OUT}")
+
+
+if __name__ == "__main__":
+    main()
