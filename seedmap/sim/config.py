@@ -132,6 +132,7 @@ class ImagingConfig(ConfigModel):
     motion_blur: bool = False
     exposure_time: float = Field(0.004, gt=0, description="s, used for motion blur")
     jpeg_quality: int | None = Field(None, ge=10, le=100, description="JPEG round trip quality (None = off)")
+    threads: int = Field(2, ge=1, le=2, description="render the two cameras in parallel threads (same output)")
 
 
 class SimConfig(ConfigModel):

@@ -105,7 +105,6 @@ class _FrameScene:
                  light: np.ndarray) -> None:
         o3d = _o3d()
         self.world = world
-        self.stats: dict[str, int] = {}
         self.f32 = _world_f32(world)
         self.D = world.panicle_motion(t)
         self.Dinv = invert(self.D) if len(self.D) else self.D
@@ -193,11 +192,22 @@ class _FrameScene:
         return out
 
     def _select(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, pix: np.ndarray | None,
-                boxes: np.ndarray | None) -> list[np.ndarray]:
+                boxes: np.ndarray | None, grid: tuple[int, int] | None = None) -> list[np.ndarray]:
         """Per active panicle, the rays that may hit it (sphere test or pixel rectangle)."""
         P = len(self.active)
         if P == 0 or len(d) == 0:
             return [np.zeros(0, np.int64)] * P
+        if grid is not None and boxes is not None:  # rays of all pixels, row-major
+            H, W = grid
+            out = []
+            for b in boxes:
+                c0, c1 = max(0, int(np.ceil(b[0]))), min(W - 1, int(np.floor(b[2])))
+                r0, r1 = max(0, int(np.ceil(b[1]))), min(H - 1, int(np.floor(b[3])))
+                if c1 < c0 or r1 < r0:
+                    out.append(np.zeros(0, np.int64))
+                else:
+                    out.append((np.arange(r0, r1 + 1)[:, None] * W + np.arange(c0, c1 + 1)[None, :]).reshape(-1))
+            return out
         if pix is not None and boxes is not None:
             u, v = pix[:, 0], pix[:, 1]
             return [np.nonzero((u >= b[0]) & (u <= b[2]) & (v >= b[1]) & (v <= b[3]))[0] for b in boxes]
@@ -216,26 +226,28 @@ class _FrameScene:
 
     # ---- queries ----
     def trace(self, o: np.ndarray, d: np.ndarray, pix: np.ndarray | None = None,
-              boxes: np.ndarray | None = None) -> _Hits:
+              boxes: np.ndarray | None = None, grid: tuple[int, int] | None = None) -> _Hits:
         """Closest hit of rays ``o + t d`` (``d`` unit float32 (N, 3); ``o`` (1, 3) or (N, 3)).
 
         ``pix``/``boxes``: pixel coordinates of primary rays and the panicles' pixel rectangles
-        (cheaper than the sphere test)."""
+        (cheaper than the sphere test); ``grid=(H, W)`` when the rays are all pixels, row-major.
+        ``prim``/``bary`` are only meaningful where ``t`` is finite."""
         n = len(d)
         o = np.asarray(o, np.float32)
-        t = np.full(n, np.inf, np.float32)
         cls = np.zeros(n, np.uint8)
         obj = np.full(n, -1, np.int32)
-        prim = np.zeros(n, np.int64)
-        bary = np.zeros((n, 2), np.float32)
         if self.env is not None and n:
             ans = self.env.cast_rays(_rays_tensor(o, d))
             t = ans["t_hit"].numpy()
-            hit = np.isfinite(t)
-            prim[hit] = ans["primitive_ids"].numpy()[hit]
-            bary[hit] = ans["primitive_uvs"].numpy()[hit]
+            prim = ans["primitive_ids"].numpy()
+            bary = ans["primitive_uvs"].numpy()
+            hit = np.nonzero(t < np.inf)[0]
             cls[hit] = self.tri_cls[prim[hit]]
-        for j, idx in enumerate(self._select(o, d, t, pix, boxes)):
+        else:
+            t = np.full(n, np.inf, np.float32)
+            prim = np.zeros(n, np.uint32)
+            bary = np.zeros((n, 2), np.float32)
+        for j, idx in enumerate(self._select(o, d, t, pix, boxes, grid)):
             if len(idx) == 0:
                 continue
             k = int(self.active[j])
@@ -251,7 +263,7 @@ class _FrameScene:
                 continue
             jj = idx[better]
             t[jj] = tk[better]
-            pk = ans["primitive_ids"].numpy()[better].astype(np.int64)
+            pk = ans["primitive_ids"].numpy()[better]
             prim[jj] = pk
             bary[jj] = ans["primitive_uvs"].numpy()[better]
             cls[jj] = np.where(pk < bvh.n_seed_tris, CLS_SEED, CLS_RACHIS)
@@ -259,11 +271,15 @@ class _FrameScene:
         seed = np.full(n, -1, np.int64)
         sm = cls == CLS_SEED
         if sm.any():
-            seed[sm] = self.seed_start[obj[sm]] + prim[sm] // TRIS_PER_SEED
+            seed[sm] = self.seed_start[obj[sm]] + (prim[sm] // TRIS_PER_SEED).astype(np.int64)
         return _Hits(t, cls, obj, prim, bary, seed)
 
-    def occluded(self, o: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """True where the segment ``o -> o + v`` (float32 (N, 3), not unit) hits anything."""
+    def occluded(self, o: np.ndarray, v: np.ndarray, pix: np.ndarray | None = None,
+                 boxes: np.ndarray | None = None) -> np.ndarray:
+        """True where the segment ``o -> o + v`` (float32 (N, 3), not unit) hits anything.
+
+        ``pix``/``boxes``: for shadow rays of camera pixels, the pixels and per-panicle rectangles
+        outside which a panicle cannot shadow the pixel (see ``shadow_boxes``)."""
         n = len(o)
         occ = np.zeros(n, bool)
         if n == 0:
@@ -276,7 +292,23 @@ class _FrameScene:
             return occ
         length = np.sqrt((v[rem] * v[rem]).sum(1))
         du = v[rem] / np.maximum(length, 1e-12)[:, None]
-        for j, sel in enumerate(self._select(o[rem], du, length, None, None)):
+        if pix is not None and boxes is not None:
+            pr = pix[rem]
+            sels = []
+            for j, b in enumerate(boxes):
+                cand = np.nonzero((pr[:, 0] >= b[0]) & (pr[:, 0] <= b[2]) & (pr[:, 1] >= b[1]) & (pr[:, 1] <= b[3]))[0]
+                if len(cand):
+                    # exact sphere test on the candidates only
+                    oc = self.centers[j] - o[rem[cand]]
+                    bb = _dot(oc, du[cand])
+                    c2 = _dot(oc, oc) - bb * bb
+                    r = self.radii[j]
+                    ok = (c2 <= r * r) & (bb + r > 0) & (bb - np.sqrt(np.maximum(r * r - c2, 0)) < length[cand])
+                    cand = cand[ok]
+                sels.append(cand)
+        else:
+            sels = self._select(o[rem], du, length, None, None)
+        for j, sel in enumerate(sels):
             idx = rem[sel]
             idx = idx[~occ[idx]]
             if len(idx) == 0:
@@ -348,14 +380,16 @@ def _normalize(a: np.ndarray) -> np.ndarray:
 
 
 def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray, light_axes: np.ndarray,
-           cfg: SimConfig, rng: np.random.Generator) -> np.ndarray:
+           cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
+           sboxes: np.ndarray | None = None) -> np.ndarray:
     """Linear RGB radiance (1 = white surface facing the flash at REF_DISTANCE) per ray (float32 (N, 3))."""
-    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng)
+    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, sboxes)
     return direct * vis[:, None] + amb
 
 
 def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray,
-                 light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator):
+                 light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
+                 sboxes: np.ndarray | None = None):
     """``(direct (N, 3), flash visibility (N,), ambient (N, 3))``: radiance = direct * vis + ambient."""
     ic = cfg.imaging
     world = fs.world
@@ -462,7 +496,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     if ic.shadows:
         lit = np.nonzero((ndl > 0) & (irr > 1e-4))[0]
         start = p[lit] + nrm[lit] * 2e-4 + ldir[lit] * 5e-4
-        occ = fs.occluded(start, lp[lit] - start)
+        occ = fs.occluded(start, lp[lit] - start, None if pix is None else pix[live[lit]], sboxes)
         vis[lit[occ]] = 0.0
     hv = _normalize(ldir - dl)
     spec = ks * np.maximum(_dot(nrm, hv), 0) ** shin
@@ -478,7 +512,7 @@ def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.
     H, W = vis.shape
     for axis in (1, 0):
         vp = np.pad(vis, radius, mode="edge")
-        kp = np.pad(key, radius, mode="constant", constant_values=np.iinfo(np.int64).min)
+        kp = np.pad(key, radius, mode="constant", constant_values=np.iinfo(key.dtype).min)
         num = vis.copy()
         den = np.ones_like(vis)
         for s in range(-radius, radius + 1):
@@ -493,6 +527,32 @@ def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.
             den += same
         vis = num / den
     return vis
+
+
+def _shadow_boxes(fs: _FrameScene, boxes: np.ndarray, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray,
+                  cfg: SimConfig) -> np.ndarray:
+    """Pixel rectangles outside which a panicle cannot shadow what a pixel sees.
+
+    The segment from a surface point to a flash point ``L`` (camera frame, ``L_z ~ 0``) projects to
+    the half-line from the pixel in direction ``(fx L_x, fy L_y)``; where it can meet a panicle's
+    sphere (depth >= z_near) it has moved at most ``f |L| / z_near`` pixels. So the pixel must lie in
+    the panicle's box grown by that much against the flash direction (plus the flash radius)."""
+    R, o = T_wc[:3, :3], T_wc[:3, 3]
+    L = R.T @ (light - o)
+    rho = cfg.imaging.flash_radius
+    pc = (fs.centers - o) @ R
+    out = np.array(boxes, float, copy=True)
+    for j, b in enumerate(boxes):
+        z_near = pc[j, 2] - fs.radii[j]
+        if z_near <= 0.05 or abs(L[2]) > 0.5 * z_near:
+            out[j] = (-1e9, -1e9, 1e9, 1e9)
+            continue
+        sx, sy = calib.fx / (z_near - abs(L[2])), calib.fy / (z_near - abs(L[2]))
+        out[j, 0] -= sx * (max(L[0], 0) + rho) + 1
+        out[j, 2] += sx * (max(-L[0], 0) + rho) + 1
+        out[j, 1] -= sy * (max(L[1], 0) + rho) + 1
+        out[j, 3] += sy * (max(-L[1], 0) + rho) + 1
+    return out
 
 
 def _camera_dirs(world: World, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
@@ -515,6 +575,11 @@ def _unit_dirs(calib: StereoCalib, pix: np.ndarray) -> np.ndarray:
     return np.stack([x * inv, y * inv, inv], 1).astype(np.float32)
 
 
+def _object_key(h: _Hits) -> np.ndarray:
+    """One int32 per ray naming what it sees: the seed id, or a negative code of (class, object)."""
+    return np.where(h.seed >= 0, h.seed.astype(np.int32), -(h.cls.astype(np.int32) * 1_000_000 + h.obj + 2))
+
+
 def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: SimConfig,
                    rng: np.random.Generator, light: np.ndarray, light_axes: np.ndarray):
     H, W = calib.height, calib.width
@@ -523,9 +588,10 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     dc, pix = _camera_dirs(fs.world, calib)
     d = dc @ R.T
     boxes = fs.pixel_boxes(T_wc, calib)
-    h = fs.trace(o, d, pix, boxes)
-    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng)
-    key = np.where(h.seed >= 0, h.seed, -(h.cls.astype(np.int64) * 1_000_000 + h.obj + 2))
+    h = fs.trace(o, d, pix, boxes, grid=(H, W))
+    sboxes = _shadow_boxes(fs, boxes, T_wc, calib, light, cfg)
+    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, sboxes)
+    key = _object_key(h)
     if cfg.imaging.shadows and cfg.imaging.flash_radius > 0:
         vis = _filter_visibility(vis.reshape(H, W), key.reshape(H, W)).reshape(-1)
     rgb = direct * vis[:, None] + amb
@@ -542,7 +608,7 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
         for a, b, ea, eb in ((key2[:, 1:], key2[:, :-1], (slice(None), slice(1, None)), (slice(None), slice(0, -1))),
                              (key2[1:, :], key2[:-1, :], (slice(1, None), slice(None)), (slice(0, -1), slice(None)))):
             ta, tb = tt[ea], tt[eb]
-            e = ((a != b) | (np.abs(ta - tb) > 0.02 * np.minimum(ta, tb))) & (lit[ea] | lit[eb])
+            e = ((a != b) | (np.abs(ta - tb) > 0.05 * np.minimum(ta, tb))) & (lit[ea] | lit[eb])
             edge[ea] |= e
             edge[eb] |= e
         idx = np.nonzero(edge.reshape(-1))[0]
@@ -556,14 +622,14 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
                     ps = pix[idx] + np.array([du, dv], np.float32)
                     ds = _unit_dirs(calib, ps) @ R.T
                     hs = fs.trace(o, ds, ps, boxes)
-                    ks = np.where(hs.seed >= 0, hs.seed, -(hs.cls.astype(np.int64) * 1_000_000 + hs.obj + 2))
+                    ks = _object_key(hs)
                     same = ks == kc
                     acc[same] += base[same]
                     diff = np.nonzero(~same)[0]
                     if len(diff):
                         sub = _Hits(hs.t[diff], hs.cls[diff], hs.obj[diff], hs.prim[diff], hs.bary[diff],
                                     hs.seed[diff])
-                        acc[diff] += _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng)
+                        acc[diff] += _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng, ps[diff], sboxes)
             rgb[idx] = acc / (n_ss * n_ss)
     return rgb.reshape(H, W, 3), seed_img, depth, h
 
@@ -650,8 +716,6 @@ def _instances(fs: _FrameScene, seed_img: np.ndarray, centers_now: np.ndarray, T
     pix_ok = np.zeros(K, bool)
     pix_ok[inside] = seed_img[cr[inside], cu[inside]] == ids[inside]
     visible = ray_ok & pix_ok
-    fs.stats["center_ray_visible"] = fs.stats.get("center_ray_visible", 0) + int(ray_ok.sum())
-    fs.stats["center_visible"] = fs.stats.get("center_visible", 0) + int(visible.sum())
     inst = Instances(
         label=np.arange(1, K + 1, dtype=np.uint16), seed_id=world.seeds.seed_id[ids].astype(np.int64),
         panicle_id=world.seeds.panicle_id[ids].astype(np.int64), boxes=np.column_stack([x0, y0, x1, y1]),
@@ -680,12 +744,25 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
     fs = _FrameScene(world, t, [T_l, T_r], calib, light)
     gain = cfg.imaging.exposure * 1.1 * float(np.exp(rng.normal(0, cfg.imaging.exposure_jitter)))
     centers = world.seed_centers_at(t, fs.D)
-    out = {}
-    for name, T in (("left", T_l), ("right", T_r)):
-        lin, seed_img, depth, _ = _render_camera(fs, T, calib, cfg, rng, light, light_axes)
-        img = _develop(lin, calib, cfg, rng, gain, depth, world.cache)
+    # one generator per camera, so the result does not depend on whether they run in parallel
+    cam_rngs = rng.spawn(2)
+    jobs = (("left", T_l, cam_rngs[0]), ("right", T_r, cam_rngs[1]))
+
+    def one(job):
+        name, T, crng = job
+        lin, seed_img, depth, _ = _render_camera(fs, T, calib, cfg, crng, light, light_axes)
+        img = _develop(lin, calib, cfg, crng, gain, depth, world.cache)
         labels, inst = _instances(fs, seed_img, centers, T, calib)
-        out[name] = (img, labels, inst, depth)
+        return name, (img, labels, inst, depth)
+
+    if cfg.imaging.threads > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _camera_dirs(world, calib)  # fill the shared caches before the threads start
+        with ThreadPoolExecutor(max_workers=2) as ex:
+            out = dict(ex.map(one, jobs))
+    else:
+        out = dict(one(j) for j in jobs)
     return RenderedStereo(
         left=out["left"][0], right=out["right"][0], left_labels=out["left"][1], right_labels=out["right"][1],
         left_instances=out["left"][2], right_instances=out["right"][2], left_depth=out["left"][3],

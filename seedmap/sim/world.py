@@ -180,20 +180,37 @@ def _envelope(s: np.ndarray, R: float) -> np.ndarray:
 
 
 def _thin(points: np.ndarray, order: np.ndarray, dmin: float, n_max: int) -> np.ndarray:
-    """Greedy dart-throwing in ``order``: keep points at least ``dmin`` apart, at most ``n_max``."""
-    tree = cKDTree(points)
-    nbrs = tree.query_ball_point(points, dmin)
-    kept = np.zeros(len(points), bool)
-    out = []
-    for i in order:
-        nb = nbrs[i]
-        if len(nb) > 1 and kept[nb].any():
-            continue
-        kept[i] = True
-        out.append(i)
-        if len(out) >= n_max:
+    """Greedy dart throwing in ``order``: keep a point unless an earlier kept point lies within
+    ``dmin``; return the first ``n_max`` kept points (in order).
+
+    Computed as the lexicographically-first maximal independent set of the ``dmin`` neighbour graph
+    in rounds (a point whose undecided neighbours all come later is kept, its neighbours dropped),
+    which equals the sequential greedy result without a Python loop over points.
+    """
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    pairs = cKDTree(points).query_pairs(dmin, output_type="ndarray")
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(len(order))
+    a, b = pairs[:, 0], pairs[:, 1]
+    lo = np.where(rank[a] < rank[b], a, b)
+    hi = np.where(rank[a] < rank[b], b, a)
+    state = np.zeros(n, np.int8)  # 0 undecided, 1 kept, 2 dropped
+    while True:
+        und = state == 0
+        if not und.any():
             break
-    return np.array(out, np.int64)
+        live = und[lo] & und[hi]
+        blocked = np.zeros(n, bool)
+        blocked[hi[live]] = True
+        new = und & ~blocked
+        state[new] = 1
+        state[hi[new[lo] & (state[hi] == 0)]] = 2
+        state[lo[new[hi] & (state[lo] == 0)]] = 2
+    kept = np.nonzero(state == 1)[0]
+    kept = kept[np.argsort(rank[kept])]
+    return kept[:n_max]
 
 
 @dataclass
