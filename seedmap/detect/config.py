@@ -20,28 +20,29 @@ class GtConfig(ConfigModel):
 
 
 class FastConfig(ConfigModel):
-    """The classical detector: brightness blob response + local maxima + marker watershed.
+    """The classical detector: DoG blob peaks + steepest-ascent regions + moment ellipses.
 
-    Pixel sizes refer to the seed diameter ``seed_px`` at the working resolution; all filters
-    scale with it so the same config works at other image scales.
+    Pixel sizes refer to the seed diameter ``seed_px`` at the working resolution; the filters
+    scale with it. Defaults tuned on a simulated range (seed 1) at the default 1434x1050.
     """
 
     #: expected seed diameter (px) at the input resolution; the scale of every filter
-    seed_px: float = 6.0
+    seed_px: float = 5.0
     #: run on the image resized by this factor (< 1 is faster, keypoints are mapped back)
     work_scale: float = 1.0
-    #: minimum blob (DoG) response, in grey levels
-    min_response: float = 6.0
-    #: pixels darker than this (grey level) are background (flash imaging: dark far field)
-    min_brightness: float = 40.0
-    #: a region pixel must be at least this fraction of its peak's brightness above background
-    region_rel: float = 0.5
-    #: minimum chroma-weighted "seediness": reject green leaf pixels (g much larger than r)
+    #: inner / outer Gaussian of the DoG, as multiples of the seed-matched sigma d / (2 sqrt 2)
+    dog_inner: float = 0.6
+    dog_outer: float = 1.13
+    #: a pixel belongs to a seed region when its DoG response exceeds this (grey levels)
+    region_min: float = -3.0
+    #: minimum blob (DoG) response of a seed, in grey levels
+    min_response: float = 15.0
+    #: a seed's smoothed brightness must exceed this (grey levels; flash imaging: dark far field)
+    min_brightness: float = 70.0
+    #: leaf suppression: f -= (max_green_excess / 16) * max(G - R, 0)
     max_green_excess: float = 25.0
     #: minimum region area in px at the input resolution
     min_area_px: int = 4
-    #: minimum separation of two peaks as a fraction of seed_px
-    peak_sep: float = 0.6
     ellipse: Literal["moments", "contour"] = "moments"
 
 
