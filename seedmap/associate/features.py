@@ -18,10 +18,11 @@ so the ratio test compares only geometrically possible candidates (a descriptor 
 only with a far-away look-alike is then kept). It is off by default (facts.md order: ratio test,
 then gates); the benchmark's tuning decides whether it helps.
 
-Availability in the installed OpenCV (5.0, no contrib): SIFT and ORB are in the main module.
+Availability depends on the OpenCV build: SIFT and ORB are in the main module of every version.
 SURF is patented and lives only in builds with the non-free contrib module
-(``cv2.xfeatures2d.SURF_create``); OpenCV 5 also moved AKAZE (with KAZE, BRISK, AGAST) to
-``opencv_contrib/xfeatures2d`` (opencv/opencv#25292). When a detector is missing,
+(``cv2.xfeatures2d.SURF_create``), which no PyPI wheel ships. AKAZE is in the main module of
+OpenCV 4.x; OpenCV 5 moved it (with KAZE, BRISK, AGAST) to ``opencv_contrib/xfeatures2d``
+(opencv/opencv#25292), where it is looked up as a fallback. When a detector is missing,
 ``FeatureMatcher`` raises a :class:`SeedmapError` whose message starts with ``"n/a"``; the
 benchmark turns that into an "n/a" row instead of failing or substituting another descriptor.
 
