@@ -1,7 +1,9 @@
 """The SLAM core: one verb per frame, ``SemanticSlam.register_frame(features)``.
 
 Front-end: triangulate the stereo matches, associate the current left keypoints with the previous
-frame's, estimate the frame-to-frame motion from the 3D seeds with RANSAC + Kabsch, and continue a
+frame's, estimate the frame-to-frame motion from the 3D seeds with RANSAC (default: 1-point
+translation, rotation left to the graph, see ``seedmap.slam.motion.ransac_translation``; option:
+3-point Kabsch / Umeyama for the full SE(3)), and continue a
 landmark track only through RANSAC-verified matches (a re-seen seed keeps its landmark id; a
 wrong association cannot extend a track).
 
