@@ -210,8 +210,14 @@ class FeatureMatcher:
         if desc_a is None or desc_b is None or len(desc_a) == 0 or len(desc_b) == 0:
             return Matches()
         if self.cfg.gate_first:
-            ia, ib = np.meshgrid(np.arange(len(kp_a)), np.arange(len(kp_b)), indexing="ij")
-            mask = gate(ia.ravel(), ib.ravel()).reshape(len(kp_a), len(kp_b)).astype(np.uint8)
+            na, nb = len(kp_a), len(kp_b)
+            mask = np.zeros((na, nb), np.uint8)
+            step = max(1, 2_000_000 // max(nb, 1))  # row blocks keep the temporaries small
+            for s in range(0, na, step):
+                rows = np.arange(s, min(s + step, na))
+                ia = np.repeat(rows, nb)
+                ib = np.tile(np.arange(nb), len(rows))
+                mask[rows] = gate(ia, ib).reshape(len(rows), nb)
             if not mask.any():
                 return Matches()
             knn = self._bf.knnMatch(desc_a, desc_b, k=2, mask=mask)
