@@ -73,8 +73,11 @@ class RegisterConfig(ConfigModel):
 
 
 class CountConfig(ConfigModel):
-    """De-duplication of seed detections in 3D (see seedmap.recon.count for the method)."""
+    """De-duplication of seed detections in 3D (see seedmap.recon.count for the methods)."""
 
+    method: Literal["tracks", "density"] = "tracks"
+    link_radius: float = Field(0.0025, gt=0, description="tracks: max 3D distance of a cross-view link (m)")
+    max_lag: int = Field(3, ge=1, description="tracks: link views up to this many steps apart (around the circle)")
     dbscan_eps: float = Field(0.004, gt=0, description="DBSCAN neighbourhood (m): separates seed groups/outliers")
     dbscan_min_points: int = Field(2, ge=1)
     bandwidth: float = Field(0.0008, gt=0, description="Gaussian density smoothing sigma (m)")
