@@ -172,6 +172,54 @@ def eval_detect_cmd(
     typer.echo(f"metrics written to {path}")
 
 
+def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],
+                  config: Optional[Path], set_: Optional[List[str]], resume: bool, overwrite: bool) -> None:
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.config import load_config
+    from seedmap.detect.labels import open_labelled
+    from seedmap.detect.learned import train as tr
+
+    cls = tr.DetectorTrainConfig if kind == "detector" else tr.SegmenterTrainConfig
+    cfg = load_config(cls, config, set_ or [])
+    src = open_labelled(data, images_root)
+    vsrc = open_labelled(val, images_root) if val is not None else None
+    fn = tr.train_detector if kind == "detector" else tr.train_segmenter
+    p = fn(src, out, cfg, val_source=vsrc, resume=resume, overwrite=overwrite)
+    typer.echo(f"{kind} weights written to {p} (metrics: {out / (kind + '_metrics.jsonl')})")
+
+
+@train_app.command("detector")
+def train_detector_cmd(
+    data: Path = typer.Argument(..., help="Simulated dataset folder (GT masks) or a COCO .json with boxes."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for detector.safetensors, checkpoint, metrics."),
+    val: Optional[Path] = typer.Option(None, "--val", help="Held-out data (default: last val_fraction of DATA)."),
+    images_root: Optional[Path] = typer.Option(None, "--images-root", help="COCO: folder of the image files."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from detector_checkpoint.safetensors."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Start over in a folder that holds weights."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Train the Faster R-CNN (VGG16) seed detector (needs seedmap[learned]; a GPU for full training)."""
+    _train_common("detector", data, out, val, images_root, config, set_, resume, overwrite)
+
+
+@train_app.command("segmenter")
+def train_segmenter_cmd(
+    data: Path = typer.Argument(..., help="Simulated dataset folder (GT masks) or a COCO .json with masks."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for segmenter.safetensors/.onnx, checkpoint, metrics."),
+    val: Optional[Path] = typer.Option(None, "--val", help="Held-out data (default: last val_fraction of DATA)."),
+    images_root: Optional[Path] = typer.Option(None, "--images-root", help="COCO: folder of the image files."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from segmenter_checkpoint.safetensors."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Start over in a folder that holds weights."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Train the pix2pix seed segmenter (U-Net + PatchGAN) on box crops (needs seedmap[learned])."""
+    _train_common("segmenter", data, out, val, images_root, config, set_, resume, overwrite)
+
+
 # ================================================================================================
 # slam / demo / eval associate / eval slam (seedmap.associate, seedmap.slam)
 # ================================================================================================

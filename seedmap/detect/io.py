@@ -12,8 +12,8 @@
 The keypoint of a detection is its ellipse centre ``(cx, cy)``.
 
 ``DIR/detections_coco.json`` — the same detections as a COCO dataset (``images``, ``annotations``
-with ``bbox`` = [x, y, w, h], ``score``, ``keypoints`` = [cx, cy, 2], an ``ellipse`` field and a
-polygon ``segmentation`` of the ellipse, ``categories`` = one ``seed`` class), so other tools can
+with ``bbox`` = [x, y, w, h], ``score``, ``keypoints`` = [cx, cy, 2] and ``ellipse`` in seedmap pixel-centre coordinates, a
+polygon ``segmentation`` of the ellipse in COCO pixel-edge coordinates (+0.5), ``categories`` = one ``seed`` class), so other tools can
 read them and they can serve as (pseudo-)labels for training.
 """
 
@@ -86,7 +86,7 @@ def coco_from_records(records: Iterable[dict]) -> dict:
             cx, cy, ma, mi, ang = e
             poly = cv2.ellipse2Poly((int(round(cx * 16)), int(round(cy * 16))),
                                     (max(int(round(ma * 8)), 1), max(int(round(mi * 8)), 1)), int(round(ang)), 0,
-                                    360, 30).astype(np.float64) / 16.0
+                                    360, 30).astype(np.float64) / 16.0 + 0.5  # COCO: pixel edges at integers
             anns.append({
                 "id": aid, "image_id": img_id, "category_id": 1,
                 "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],

@@ -89,14 +89,22 @@ def rle_counts_to_string(counts: list[int]) -> str:
 def segmentation_mask(seg: object, h: int, w: int) -> np.ndarray:
     """COCO ``segmentation`` (polygons or RLE) -> ``h x w`` uint8 mask."""
     if isinstance(seg, list):
+        from matplotlib.path import Path as MplPath
+
         m = np.zeros((h, w), np.uint8)
         for poly in seg:
             p = np.asarray(poly, np.float64).reshape(-1, 2)
-            if len(p) >= 3:
-                # polygon vertices are continuous coordinates with pixel edges at integers (COCO);
-                # shift to OpenCV's pixel-centre convention and fill with 1/16 px precision
-                pts = np.round((p - 0.5) * 16).astype(np.int32)
-                cv2.fillPoly(m, [pts], 1, cv2.LINE_8, 4)
+            if len(p) < 3:
+                continue
+            # COCO polygons use pixel-edge coordinates (pixel k spans [k, k+1)): a pixel is inside
+            # when its centre (k + 0.5) is inside the polygon
+            x0, y0 = np.clip(np.floor(p.min(axis=0)).astype(int), 0, [w, h])
+            x1, y1 = np.clip(np.ceil(p.max(axis=0)).astype(int) + 1, 0, [w, h])
+            if x1 <= x0 or y1 <= y0:
+                continue
+            yy, xx = np.mgrid[y0:y1, x0:x1]
+            inside = MplPath(p).contains_points(np.c_[xx.ravel() + 0.5, yy.ravel() + 0.5])
+            m[y0:y1, x0:x1] |= inside.reshape(yy.shape).astype(np.uint8)
         return m
     if isinstance(seg, dict) and "counts" in seg:
         sh = seg.get("size", [h, w])
