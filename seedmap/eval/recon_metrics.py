@@ -84,3 +84,31 @@ def evaluate_reconstruction(poses: np.ndarray, cloud_xyz: np.ndarray, count: int
     if fk_poses is not None:
         out.update({f"fk_{k}": v for k, v in pose_errors(fk_poses, gt_rest_poses).summary().items()})
     return out
+
+
+def summarize_scan_rows(rows: list[dict], modes: list[str], tune_panicles: tuple[int, ...] = ()) -> dict:
+    """Aggregate per-panicle evaluation rows (as written by the recon evaluation) into per-mode
+    means/stds on the held-out panicles, plus the Spearman correlation of the GT-free scores with
+    the GT errors over all (panicle, mode) pairs."""
+    from scipy.stats import spearmanr
+
+    held = [r for r in rows if r["panicle"] not in tune_panicles]
+    out: dict = {"panicles": [r["panicle"] for r in held], "modes": {}}
+    keys = ["pose_trans_mm_mean", "pose_rot_deg_mean", "cloud_dist_mm_median", "cloud_dist_mm_p90",
+            "icp_s_per_view", "count_ape_pct"]
+    for m in modes:
+        vals = {k: np.array([r["modes"][m][k] for r in held if m in r["modes"]], float) for k in keys}
+        out["modes"][m] = {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in vals.items() if len(v)}
+    pairs = [(r["modes"][m]["quality"]["seed_spread_mm"], r["modes"][m]["quality"]["surface_thickness_mm"],
+              r["modes"][m]["pose_trans_mm_mean"], r["modes"][m]["cloud_dist_mm_median"])
+             for r in held for m in modes if m in r["modes"]]
+    a = np.array(pairs, float)
+    if len(a) >= 4:
+        out["quality_correlation"] = {
+            "seed_spread_vs_pose_error": float(spearmanr(a[:, 0], a[:, 2]).statistic),
+            "seed_spread_vs_cloud_error": float(spearmanr(a[:, 0], a[:, 3]).statistic),
+            "surface_thickness_vs_pose_error": float(spearmanr(a[:, 1], a[:, 2]).statistic),
+            "surface_thickness_vs_cloud_error": float(spearmanr(a[:, 1], a[:, 3]).statistic),
+            "n_pairs": int(len(a)),
+        }
+    return out

@@ -56,6 +56,10 @@ class RegisterConfig(ConfigModel):
     """Refining FK poses with ICP (Open3D) against the growing model."""
 
     mode: Literal["fk", "full", "seeds"] = "seeds"
+    strategy: Literal["sequential", "global"] = Field(
+        "sequential", description="sequential = each view against the growing model of the views before it (drifts "
+                              "around the circle); global = every view against all other views, Jacobi passes")
+    passes: int = Field(3, ge=1, description="global strategy: refinement passes")
     init: Literal["fk", "chain"] = Field(
         "chain", description="initial guess: FK pose, or FK motion since the previous refined view")
     full_method: Literal["point_to_point", "point_to_plane"] = "point_to_plane"

@@ -140,7 +140,9 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         vc = _downsample_view(vc, cfg.cloud.voxel_size)
         so = seed_centres(disp, sdet.left, ds.calib, cfg.seeds, cfg.cloud, sdet.right)
         reg_xyz = voxel_down(vc.xyz, cfg.registration.full_voxel)
-        geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.xyz)
+        # seed ICP uses the measured front-surface points of the seeds: seen from neighbouring views
+        # they are nearly the same points, while the radius push-back adds view-dependent errors
+        geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.surface_xyz)
         views.append(PreparedView(vc, so, geo, len(sdet.left)))
     if bar is not None:
         bar.close()

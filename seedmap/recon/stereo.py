@@ -29,10 +29,11 @@ class SeedObservations:
     """3D seed centres of one view in the LEFT camera frame: one row per detection that had enough
     valid disparity. ``det`` indexes the view's detections; ``diameter`` is the seed size (m)."""
 
-    xyz: np.ndarray  # (M, 3)
+    xyz: np.ndarray  # (M, 3) seed centres (pushed back by the radius when configured)
     diameter: np.ndarray  # (M,)
     det: np.ndarray  # (M,) int64
     seed_id: np.ndarray  # (M,) GT id from an oracle detector, -1 otherwise
+    surface_xyz: np.ndarray | None = None  # (M, 3) the measured visible-surface points (registration)
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -190,9 +191,10 @@ def seed_centres(disp: np.ndarray, det: Detections, calib: StereoCalib, cfg: See
     z = xyz[:, 2]
     # ellipse full axes (px) -> diameter (m) at that depth
     diam = 0.5 * (det.ellipses[keep, 2] + det.ellipses[keep, 3]) * z / calib.fx
+    surf = xyz.copy()
     if cfg.surface_to_centre and len(xyz):
         rays = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
         xyz = xyz + rays * (0.5 * diam)[:, None]
     inrange = (xyz[:, 2] >= cloud.min_depth) & (xyz[:, 2] <= cloud.max_depth) if len(xyz) else np.zeros(0, bool)
     dets = np.flatnonzero(keep)
-    return SeedObservations(xyz[inrange], diam[inrange], dets[inrange], det.seed_ids[dets[inrange]])
+    return SeedObservations(xyz[inrange], diam[inrange], dets[inrange], det.seed_ids[dets[inrange]], surf[inrange])
