@@ -28,7 +28,7 @@ from seedmap.sim.world import CLS_LEAF, CLS_NONE, CLS_RACHIS, CLS_SEED, CLS_SOIL
 
 TRIS_PER_SEED = 80
 REF_DISTANCE = 0.7  # m: a surface facing the flash at this distance is "well exposed"
-MAX_CACHED_PANICLES = 24
+MAX_CACHED_PANICLES = 16
 
 
 @dataclass
@@ -151,6 +151,7 @@ class _FrameScene:
             self.VC = np.vstack(VC).astype(np.float32)
             self.VUV = np.vstack(VUV).astype(np.float32)
             self.tri_cls = np.concatenate(cls)
+            self.tri_albedo = self.VC[self.F[:, 0]]  # albedo is constant per leaf / stalk
             self.env = o3d.t.geometry.RaycastingScene()
             self.env.add_triangles(o3d.core.Tensor.from_numpy(self.V),
                                    o3d.core.Tensor.from_numpy(self.F.astype(np.uint32)))
@@ -421,7 +422,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
         b1, b2 = bary[:, 0:1], bary[:, 1:2]
         b0 = 1 - b1 - b2
         nrm[em] = fs.VN[F[:, 0]] * b0 + fs.VN[F[:, 1]] * b1 + fs.VN[F[:, 2]] * b2
-        albedo[em] = fs.VC[F[:, 0]] * b0 + fs.VC[F[:, 1]] * b1 + fs.VC[F[:, 2]] * b2
+        albedo[em] = fs.tri_albedo[prim[em]]
         c = cls[em]
         soil = np.nonzero(c == CLS_SOIL)[0]
         if len(soil):
@@ -700,8 +701,9 @@ def _instances(fs: _FrameScene, seed_img: np.ndarray, centers_now: np.ndarray, T
     c_world = centers_now[ids]
     Tcw = invert(T_wc)
     pc = c_world @ Tcw[:3, :3].T + Tcw[:3, 3]
-    u = calib.fx * pc[:, 0] / pc[:, 2] + calib.cx
-    v = calib.fy * pc[:, 1] / pc[:, 2] + calib.cy
+    # rounded to the 1/1000 px the dataset stores, so the pixel test below agrees with what is read back
+    u = np.round(calib.fx * pc[:, 0] / pc[:, 2] + calib.cx, 3)
+    v = np.round(calib.fy * pc[:, 1] / pc[:, 2] + calib.cy, 3)
     # center_visible: the ray from the optical centre towards the 3D centre meets this seed first
     o = T_wc[:3, 3]
     dv = (c_world - o).astype(np.float32)

@@ -113,8 +113,8 @@ def print_stats(stats: dict) -> None:
 
 
 def write_preview(path: str | Path, n: int = 9, width: int = 480) -> Path:
-    """``preview.png``: a grid of ``n`` evenly spaced left frames with GT seed centres drawn
-    (green = centre visible, red = seed visible but its centre hidden)."""
+    """``preview.png``: a grid of ``n`` evenly spaced left frames with the GT centres of the seeds
+    whose centre is visible drawn as green dots."""
     import cv2
 
     from seedmap.io.images import write_png
@@ -129,9 +129,10 @@ def write_preview(path: str | Path, n: int = 9, width: int = 480) -> Path:
         small = cv2.resize(img, (width, int(round(img.shape[0] * s))), interpolation=cv2.INTER_AREA)
         if (Path(path) / "gt").is_dir():
             inst = ds.gt_instances(int(i), "left")
-            for (u, v), cv in zip(inst.center_uv, inst.center_visible, strict=True):
-                col = (0, 255, 0) if cv else (255, 0, 0)
-                cv2.circle(small, (int(round((u + 0.5) * s - 0.5)), int(round((v + 0.5) * s - 0.5))), 1, col, -1)
+            uv = inst.center_uv[inst.center_visible]
+            px = np.floor((uv + 0.5) * s).astype(int)
+            ok = (px[:, 0] >= 0) & (px[:, 0] < small.shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < small.shape[0])
+            small[px[ok, 1], px[ok, 0]] = (0, 255, 0)
         cv2.putText(small, f"frame {i}", (8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 0), 1, cv2.LINE_AA)
         tiles.append(small)
     cols = 3

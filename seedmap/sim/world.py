@@ -238,7 +238,7 @@ def _grow_panicle(rng: np.random.Generator, cfg: SimConfig, n_target: int, L: fl
     step = rng.uniform(0.004, 0.006) if not loose else rng.uniform(0.008, 0.012)
     rise_lo, rise_hi = (25, 45) if not loose else (35, 60)
     grow = 1.0
-    for _attempt in range(4):
+    for _attempt in range(7):
         R = W / 2 * grow
         Lg = L * grow ** 0.5
         n_br = max(6, int(Lg * 0.92 / step))
@@ -274,7 +274,7 @@ def _grow_panicle(rng: np.random.Generator, cfg: SimConfig, n_target: int, L: fl
         keep = _thin(cand, np.argsort(key), 0.97 * d_mean, n_target)
         if len(keep) >= 0.97 * n_target:
             break
-        grow *= 1.12
+        grow *= 1.15
     xyz = cand[keep]
     n = len(xyz)
     # mean diameter (2 x mean semi-axis) per seed within [seed_diameter_min, seed_diameter_max];
@@ -442,7 +442,13 @@ def _add_plant(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, x: float
         az = phi0 + np.pi * k + rng.normal(0, 0.5)
         length = rng.uniform(wc.leaf_length_min, wc.leaf_length_max) * (0.75 if k == n_leaves - 1 else 1.0)
         width = rng.uniform(wc.leaf_width_min, wc.leaf_width_max)
-        parts.leaves.append(_leaf_vertices(rng, attach, az, length, width))
+        v = _leaf_vertices(rng, attach, az, length, width)
+        # the robot drives 'standoff' from the row: leaves reaching into its path would be pushed
+        # aside, so squash any leaf that comes closer than 0.3 m to the lens plane
+        y_min = -cfg.camera.standoff + 0.3
+        if v[:, 1].min() < y_min and attach[1] > y_min:
+            v[:, 1] = attach[1] + (v[:, 1] - attach[1]) * (y_min - attach[1]) / (v[:, 1].min() - attach[1])
+        parts.leaves.append(v)
         parts.leaf_attach.append(attach)
         lc = LEAF_COLORS[min(3, int(rng.integers(0, 3)) + (1 if frac < 0.35 and rng.uniform() < 0.5 else 0))]
         parts.leaf_color.append(lc * rng.uniform(0.8, 1.2) * (1 + rng.normal(0, 0.06, 3)))
