@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,14 @@ _C_ELL = (0, 230, 120)
 _C_STEREO = (0, 160, 255)
 _C_TEMPORAL = (255, 60, 200)
 _C_TRAJ = {"estimate": (255, 120, 0), "ground truth": (60, 200, 60), "online": (120, 120, 255)}
+
+
+def _discard(rec: Any, tmp: Path) -> None:
+    """Finalizer of an unclosed logger (error, interpreter exit): drop the partial file."""
+    with contextlib.suppress(Exception):
+        rec.disconnect()
+    with contextlib.suppress(FileNotFoundError, TypeError):
+        os.unlink(tmp)
 
 
 def ellipse_polylines(ellipses: np.ndarray, n_pts: int = 24) -> np.ndarray:
@@ -60,11 +69,12 @@ class RerunLogger:
 
     ``jpeg_quality`` (1-100) compresses logged images (a 4096x3000 pair is ~35 MB raw per frame);
     ``None`` logs them raw. ``image_scale`` < 1 downsamples images before logging - 2D overlays are
-    scaled with them, so they stay aligned.
+    scaled with them, so they stay aligned. ``world_coordinates``: a ``rerun.ViewCoordinates`` name for
+    the world axes (``RDF`` for SLAM worlds, ``RIGHT_HAND_Z_UP`` for an arm's base frame).
     """
 
     def __init__(self, path: str | Path | None, application_id: str = "seedmap", jpeg_quality: int | None = 85,
-                 image_scale: float = 1.0) -> None:
+                 image_scale: float = 1.0, world_coordinates: str = "RDF") -> None:
         self.path = Path(path) if path is not None else None
         self.jpeg_quality = jpeg_quality
         self.image_scale = float(image_scale)
@@ -82,8 +92,13 @@ class RerunLogger:
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self._rec = rr.RecordingStream(application_id)
         self._rec.save(str(self._tmp))
-        # world frame: seedmap's left-camera optical convention at the first pose (y down)
-        self._rec.log("world", rr.ViewCoordinates.RDF, static=True)
+        # not closed (an exception unwound the pipeline, or the interpreter exits): no partial .rrd
+        self._finalizer = weakref.finalize(self, _discard, self._rec, self._tmp)
+        # world axes: "RDF" = seedmap's SLAM world (the first left-camera optical frame, y down);
+        # "RIGHT_HAND_Z_UP" for the arm scans (robot base frame)
+        self._rec.log("world", getattr(rr.ViewCoordinates, world_coordinates), static=True)
+        if world_coordinates != "RDF":
+            self._rec.log("recon", getattr(rr.ViewCoordinates, world_coordinates), static=True)
 
     # -- lifecycle -------------------------------------------------------------------------------
     @property
@@ -95,6 +110,7 @@ class RerunLogger:
         if self._rec is None:
             return None
         rec, self._rec = self._rec, None
+        self._finalizer.detach()
         rec.flush()
         rec.disconnect()  # closes the file sink (writes the footer)
         os.replace(self._tmp, self.path)
@@ -104,11 +120,8 @@ class RerunLogger:
         """Drop the recording (an error happened): no file is left behind."""
         if self._rec is None:
             return
-        rec, self._rec = self._rec, None
-        with contextlib.suppress(Exception):
-            rec.disconnect()
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self._tmp)
+        self._rec = None
+        self._finalizer()
 
     def __enter__(self) -> RerunLogger:
         return self
