@@ -136,3 +136,24 @@ def test_error_leaves_no_file(tmp_path):
             log.log_landmarks(np.zeros((3, 3)))
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_paths_are_one_line_errors(tmp_path):
+    from seedmap.errors import InputError
+
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        RerunLogger(blocker / "x.rrd")
+    with pytest.raises(InputError, match="is a folder"):
+        RerunLogger(tmp_path)
+
+
+def test_dropped_logger_leaves_no_partial_file(tmp_path):
+    import gc
+
+    log = RerunLogger(tmp_path / "y.rrd")
+    log.log_landmarks(np.zeros((3, 3)))
+    del log
+    gc.collect()
+    assert list(tmp_path.iterdir()) == []

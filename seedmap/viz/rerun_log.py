@@ -85,9 +85,12 @@ class RerunLogger:
             return
         import rerun as rr
 
+        from seedmap.errors import InputError
         from seedmap.io.atomic import check_output_parent
 
-        check_output_parent(self.path / "x")  # the parent folder must be creatable / writable
+        if self.path.is_dir():
+            raise InputError("is a folder; --rerun wants a file name such as run.rrd", self.path)
+        check_output_parent(self.path.parent / ".probe")  # the folder must be creatable / writable
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self._rec = rr.RecordingStream(application_id)
