@@ -56,10 +56,11 @@ class FastDetector(Detector):
         if s != 1.0:
             img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
         d = c.seed_px * s
-        f = seediness(img, c.max_green_excess / 16.0 if c.max_green_excess > 0 else 0.0).astype(np.float32)
+        f = seediness(img, c.max_green_excess / 16.0 if c.max_green_excess > 0 else 0.0)
         sigma = max(d / (2.0 * np.sqrt(2.0)), 0.7)
+        # uint8 blurs take OpenCV's fixed-point SIMD path (2-3x faster than float32)
         g1 = cv2.GaussianBlur(f, (0, 0), sigma * c.dog_inner)
-        dog = cv2.subtract(g1, cv2.GaussianBlur(f, (0, 0), sigma * c.dog_outer))
+        dog = cv2.subtract(g1, cv2.GaussianBlur(f, (0, 0), sigma * c.dog_outer), dtype=cv2.CV_16S)
         h, w = dog.shape
         # candidate seeds: local maxima of the DoG that are strong and bright enough
         peaks = cv2.compare(dog, cv2.dilate(dog, np.ones((3, 3), np.uint8)), cv2.CMP_GE)
@@ -78,17 +79,18 @@ class FastDetector(Detector):
         # steepest ascent on the DoG: every support pixel points at its highest 3x3 neighbour
         # (itself first, so ties keep it); following the pointers to their roots gives the basins
         # of the blob response, i.e. one region per seed, split along the dark rims between seeds
-        pad = np.full((h + 2, w + 2), -np.inf, np.float32)
-        pad[1:-1, 1:-1] = dog
+        # integer DoG: break ties by brightness so plateaus still drain to one maximum
+        key = dog.astype(np.int32) * 256 + g1
         offs = [(0, 0)] + [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
-        vals = np.stack([pad[ys + 1 + dy, xs + 1 + dx] for dy, dx in offs])
+        ny = [np.clip(ys + dy, 0, h - 1) for dy, _ in offs]
+        nx = [np.clip(xs + dx, 0, w - 1) for _, dx in offs]
+        vals = np.stack([key[a, b] for a, b in zip(ny, nx, strict=True)])
         best = np.argmax(vals, axis=0)
-        oy = np.array([o[0] for o in offs])[best]
-        ox = np.array([o[1] for o in offs])[best]
-        index = np.full((h, w), -1, np.int64)
-        index[ys, xs] = np.arange(m)
-        parent = index[ys + oy, xs + ox]
-        parent = np.where(parent < 0, np.arange(m), parent)
+        index = np.full((h, w), -1, np.int32)
+        index[ys, xs] = np.arange(m, dtype=np.int32)
+        sel = np.arange(m)
+        parent = index[np.choose(best, ny), np.choose(best, nx)].astype(np.int64)
+        parent = np.where(parent < 0, sel, parent)
         for _ in range(32):
             nxt = parent[parent]
             if np.array_equal(nxt, parent):
@@ -140,7 +142,7 @@ class FastDetector(Detector):
         ok &= np.isfinite(ell).all(axis=1) & np.isfinite(x0)
         boxes = np.stack([x0, y0, x1, y1], axis=1)[ok]
         ell = ell[ok]
-        score = np.clip(dog[pv, pu][ok] / (4.0 * c.min_response), 0.0, 1.0)
+        score = np.clip(dog[pv, pu][ok].astype(np.float32) / (4.0 * c.min_response), 0.0, 1.0)
         if s != 1.0:
             # pixel-centre convention: u_full = (u_small + 0.5) / s - 0.5
             ell[:, :2] = (ell[:, :2] + 0.5) / s - 0.5
