@@ -171,12 +171,10 @@ def run_one_range(dataset: str, out_dir: str, rel: str, matcher: str, detector: 
     Returns ``asdict(RangeResult)`` (plain data, so it crosses process and Ray boundaries)."""
     t0 = time.perf_counter()
     try:
-        try:
-            import torch
-
-            torch.set_num_threads(max(1, threads))
-        except ImportError:  # torch only matters for learned detectors
-            pass
+        # BLAS/OpenMP/torch threads per worker: OMP_NUM_THREADS etc. are set for the workers by
+        # run_batch (env inherited by spawned processes); Ray workers get them here, before any import
+        for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(k, str(max(1, threads)))
         from seedmap.slam.config import SlamConfig
         from seedmap.slam.pipeline import run_slam
 
@@ -328,8 +326,10 @@ def run_batch(
     """Run SLAM on every range below ``field`` into ``out/<relative path>/`` and write the summary.
 
     ``workers``: parallel local processes (or Ray CPUs for ``ray='local'``); ``ray``: a Ray cluster
-    address (``'auto'``, ``'ray://host:10001'``) or ``'local'`` to start one here. Ranges with a
-    finished ``metrics.json`` are skipped (resume); a failing range is recorded, never raised.
+    address (``'auto'``, ``'ray://host:10001'``) or ``'local'`` to start one here - on a real cluster
+    ``field`` and ``out`` must be paths every node sees (a shared file system) and the nodes need
+    seedmap installed. Ranges with a finished ``metrics.json`` are skipped (resume); a failing range is
+    recorded, never raised.
     """
     from seedmap.config import dump_config
     from seedmap.io.atomic import check_output_parent
