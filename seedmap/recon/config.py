@@ -79,7 +79,7 @@ class RegisterConfig(ConfigModel):
 class CountConfig(ConfigModel):
     """De-duplication of seed detections in 3D (see seedmap.recon.count for the methods)."""
 
-    method: Literal["tracks", "density"] = "tracks"
+    method: Literal["tracks", "density"] = Field("density", description="chosen on the tuning panicle (seed 100)")
     link_radius: float = Field(0.0025, gt=0, description="tracks: max 3D distance of a cross-view link (m)")
     max_lag: int = Field(3, ge=1, description="tracks: link views up to this many steps apart (around the circle)")
     dbscan_eps: float = Field(0.004, gt=0, description="DBSCAN neighbourhood (m): separates seed groups/outliers")

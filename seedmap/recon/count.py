@@ -3,14 +3,14 @@
 Every view contributes one 3D centre per detected seed (in the registered world frame), so a seed
 seen from ``n`` views appears as a tight cloud of ``n`` observations.
 
-Method ``tracks`` (default): observations of views up to ``max_lag`` steps apart around the circle
+Method ``tracks``: observations of views up to ``max_lag`` steps apart around the circle
 are linked when they are mutual nearest neighbours within ``link_radius``; links are merged
 shortest first (union-find) under a cannot-link rule -- one view sees a seed at most once, so two
 groups that share a view are never merged (this is what keeps touching seeds ~4 mm apart
 separate even where a few bad centres scatter by several mm). A group supported by at least
 ``min_observations`` distinct views is one seed.
 
-Method ``density`` (DBSCAN, density smoothing, local maxima):
+Method ``density`` (default; DBSCAN, density smoothing, local maxima):
 
 1. **DBSCAN** (Open3D ``cluster_dbscan``, ``eps`` ~ one seed diameter) splits the observations into
    spatially separate groups and marks isolated observations as noise (kept as singleton groups;
