@@ -239,3 +239,24 @@ def test_panicle_world_layout():
     assert np.median(d[:, 1] / (2 * world.seeds.radii.mean(axis=1))) > 0.9
     # panicle poses in a dataset use tum rows; the identity sway at rest round-trips
     assert np.allclose(tum_to_pose(np.array([[0, 0, 0, 0, 0, 0, 1.0]]))[0], np.eye(4))
+
+
+def test_optional_effects_change_pixels_not_ground_truth():
+    base = {"seed": 8, "camera": {"scale": 0.1}, "panicle": {"seeds_min": 400, "seeds_max": 500}}
+    cfg0 = SimConfig(**base)
+    world = build_panicle_world(cfg0, np.random.default_rng(8))
+    T = _look_at(world.panicles[0].center + np.array([-0.055, -0.4, 0]),
+                 world.panicles[0].center + np.array([-0.055, 0, 0]))
+    calib = cfg0.camera.calib()
+    plain = render_stereo(world, T, calib, cfg0, np.random.default_rng(1), t=0.0)
+    for extra in ({"motion_blur": True, "exposure_time": 0.05}, {"jpeg_quality": 40}, {"shadows": False},
+                  {"supersample": 1}):
+        cfg = SimConfig(**base, imaging=extra)
+        r = render_stereo(world, T, calib, cfg, np.random.default_rng(1), t=0.0)
+        assert r.left.shape == plain.left.shape and r.left.dtype == np.uint8
+        assert not np.array_equal(r.left, plain.left), extra
+        assert np.array_equal(r.left_labels, plain.left_labels)
+        assert np.array_equal(r.right_instances.seed_id, plain.right_instances.seed_id)
+    # the flash lights the panicle, the far background stays dark
+    lab = plain.left_labels > 0
+    assert plain.left[lab].mean() > 4 * max(plain.left[~lab].mean(), 1.0)
