@@ -201,7 +201,7 @@ def train_detector_cmd(
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
 ) -> None:
-    """Train the Faster R-CNN (VGG16) seed detector (needs seedmap[learned]; a GPU for full training)."""
+    """Train the Faster R-CNN (VGG16) seed detector (needs the learned extra, torch; a GPU for full training)."""
     _train_common("detector", data, out, val, images_root, config, set_, resume, overwrite)
 
 
@@ -216,7 +216,7 @@ def train_segmenter_cmd(
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
 ) -> None:
-    """Train the pix2pix seed segmenter (U-Net + PatchGAN) on box crops (needs seedmap[learned])."""
+    """Train the pix2pix seed segmenter (U-Net + PatchGAN) on box crops (needs the learned extra, torch)."""
     _train_common("segmenter", data, out, val, images_root, config, set_, resume, overwrite)
 
 

@@ -72,13 +72,13 @@ def detector_help() -> dict[str, str]:
 
 
 def default_weights_path() -> Path:
-    """Where shipped weights of the learned pipeline would live inside the package."""
-    return Path(__file__).with_name("weights") / "frcnn_pix2pix.safetensors"
+    """Where shipped weights of the learned pipeline live (detector.safetensors + segmenter.safetensors)."""
+    return Path(__file__).with_name("weights") / "detector.safetensors"
 
 
 def default_detector_name() -> str:
     """``frcnn-pix2pix`` when torch and shipped trained weights are present, else ``fast``."""
-    if default_weights_path().is_file():
+    if default_weights_path().is_file() and default_weights_path().with_name("segmenter.safetensors").is_file():
         try:
             import torch  # noqa: F401
             import torchvision  # noqa: F401
