@@ -276,7 +276,7 @@ def _run_local(jobs: list[tuple], workers: int, done: Callable[[dict], None]) ->
         for job in jobs:
             done(run_one_range(*job))
         return
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn")) as ex:
         futs = [ex.submit(run_one_range, *job) for job in jobs]
         for fut in as_completed(futs):
             done(fut.result())
