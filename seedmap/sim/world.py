@@ -272,7 +272,7 @@ def _grow_panicle(rng: np.random.Generator, cfg: SimConfig, n_target: int, L: fl
         cand, rr, env = cand[inner], rr[inner], env[inner]
         key = (env - rr) / d_mean + rng.uniform(0, 0.5, len(rr))
         keep = _thin(cand, np.argsort(key), 0.97 * d_mean, n_target)
-        if len(keep) >= 0.97 * n_target:
+        if len(keep) >= max(0.97 * n_target, min(n_target, pc.seeds_min)):
             break
         grow *= 1.15
     xyz = cand[keep]
