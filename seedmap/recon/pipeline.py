@@ -178,7 +178,7 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
     import open3d as o3d
     from scipy.spatial import cKDTree
 
-    from seedmap.recon.quality import quality_scores
+    from seedmap.recon.quality import cross_view_seed_distance, quality_scores
 
     geoms = [v.geometry if v is not None else None for v in prep.views]
     t0 = time.perf_counter()
@@ -224,6 +224,8 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
     _, nn = cKDTree(all_xyz).query(cxyz)
     clab = all_lab[nn]
     q = quality_scores(cxyz, cnt, seed=cfg.seed)
+    q["cross_view_seed_mm"] = cross_view_seed_distance(
+        [v.geometry.seeds_xyz if v is not None else None for v in prep.views], reg.poses) * 1000.0
     return Reconstruction(
         mode=cfg.registration.mode, poses=reg.poses, T_fk=prep.T_fk, timestamps=prep.timestamps, registration=reg,
         cloud_xyz=cxyz, cloud_rgb=crgb, cloud_label=clab, obs_xyz=obs_xyz, obs_view=obs_view, obs_diam=obs_diam,
@@ -298,8 +300,10 @@ def report_markdown(rec: Reconstruction, metrics: dict) -> str:
     lines += [f"- views: {len(rec.poses)} ({len(rec.skipped)} skipped)",
               f"- cloud points: {len(rec.cloud_xyz)}",
               f"- seed count: **{rec.count.count}** (from {len(rec.obs_xyz)} per-view detections)",
-              f"- GT-free quality: seed spread {rec.quality['seed_spread_mm']:.3f} mm, "
-              f"surface thickness {rec.quality['surface_thickness_mm']:.3f} mm", ""]
+              f"- GT-free quality (lower is better): cross-view seed distance "
+              f"{rec.quality['cross_view_seed_mm']:.3f} mm (the recommended score), seed spread "
+              f"{rec.quality['seed_spread_mm']:.3f} mm, surface thickness {rec.quality['surface_thickness_mm']:.3f} mm",
+              ""]
     gt = metrics.get("gt")
     if gt:
         lines += ["## Against ground truth", "", "| metric | value |", "|---|---|"]
