@@ -524,7 +524,7 @@ def reconstruct_cmd(
     path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet)
     q = m["quality"]
     typer.echo(f"{m['mode']}: {m['seed_count']} seeds, {m['cloud_points']} points, "
-               f"seed spread {q['seed_spread_mm']:.2f} mm (GT-free)")
+               f"cross-view seed distance {q['cross_view_seed_mm']:.2f} mm (GT-free quality, lower is better)")
     if "gt" in m:
         g = m["gt"]
         typer.echo(f"vs GT: pose {g['pose_trans_mm_mean']:.2f} mm / {g['pose_rot_deg_mean']:.3f} deg, cloud "
