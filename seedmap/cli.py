@@ -264,15 +264,17 @@ def slam_cmd(
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing result folder."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also record the run into this rerun .rrd file "
+                                         "(view it with `rerun FILE.rrd`)."),
 ) -> None:
     """Semantic stereo SLAM: trajectory, seed map and metrics (MDM, ATE, RPE) into --out."""
     from seedmap.slam.pipeline import run_slam
 
     cfg = _slam_config(config, set_)
     res = run_slam(dataset, out, matcher=matcher, detector=detector, config=cfg, overwrite=overwrite,
-                   progress=not quiet)
+                   progress=not quiet, rerun=rerun)
     _print_slam_metrics(res.metrics, f"seedmap slam: {dataset.name} ({matcher})")
-    typer.echo(f"results in {out}")
+    typer.echo(f"results in {out} (report.html)" + (f", rerun recording {rerun}" if rerun else ""))
 
 
 @app.command("demo")
@@ -506,6 +508,8 @@ def reconstruct_cmd(
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing results folder."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also record the run into this rerun .rrd file "
+                                         "(view it with `rerun FILE.rrd`)."),
 ) -> None:
     """3D model of one panicle from an arm scan: SGBM clouds, FK + ICP registration, seed count."""
     from seedmap.config import load_config
@@ -521,7 +525,7 @@ def reconstruct_cmd(
     if detector is not None:
         extra.append(f"detector={detector}")
     cfg = load_config(ReconConfig, config, extra)
-    path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet)
+    path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet, rerun=rerun)
     q = m["quality"]
     typer.echo(f"{m['mode']}: {m['seed_count']} seeds, {m['cloud_points']} points, "
                f"cross-view seed distance {q['cross_view_seed_mm']:.2f} mm (GT-free quality, lower is better)")
@@ -530,7 +534,7 @@ def reconstruct_cmd(
         typer.echo(f"vs GT: pose {g['pose_trans_mm_mean']:.2f} mm / {g['pose_rot_deg_mean']:.3f} deg, cloud "
                    f"median {g['cloud_dist_mm_median']:.2f} mm p90 {g['cloud_dist_mm_p90']:.2f} mm, "
                    f"count {g['count']} vs {g['count_gt']} ({g['count_ape_pct']:.1f} %)")
-    typer.echo(f"wrote {path}")
+    typer.echo(f"wrote {path} (report.html)" + (f", rerun recording {rerun}" if rerun else ""))
 
 
 @app.command("count")

@@ -282,6 +282,9 @@ def write_results(rec: Reconstruction, out: Path, cfg: ReconConfig, metrics: dic
         write_tum(tmp / "poses_fk_tum.txt", Trajectory(rec.timestamps, rec.T_fk))
         atomic_write_text(tmp / "metrics.json", json.dumps(metrics, indent=2, default=_jsonable))
         atomic_write_text(tmp / "report.md", report_markdown(rec, metrics))
+        from seedmap.viz.run_hooks import recon_html_report
+
+        recon_html_report(tmp, rec, metrics, metrics.get("dataset"))
     return Path(out)
 
 
@@ -366,8 +369,10 @@ def gt_metrics(rec: Reconstruction, root: Path, min_area_px: int) -> dict | None
 
 
 def run_reconstruct(dataset: str | Path, out: str | Path, cfg: ReconConfig, overwrite: bool = False,
-                    progress: bool = True) -> tuple[Path, dict]:
-    """``seedmap reconstruct``: prepare, register (``cfg.registration.mode``), count, evaluate, write."""
+                    progress: bool = True, rerun: Path | None = None) -> tuple[Path, dict]:
+    """``seedmap reconstruct``: prepare, register (``cfg.registration.mode``), count, evaluate, write.
+
+    ``rerun``: also record per-view clouds, camera poses, merged cloud and seed centres to this ``.rrd``."""
     from seedmap.io.atomic import check_output_parent
 
     out = Path(out)
@@ -382,6 +387,9 @@ def run_reconstruct(dataset: str | Path, out: str | Path, cfg: ReconConfig, over
     if gt is not None:
         metrics["gt"] = gt
     write_results(rec, out, cfg, metrics, overwrite=overwrite)
+    from seedmap.viz.run_hooks import recon_rerun
+
+    recon_rerun(rerun, prep, rec)
     return out, metrics
 
 

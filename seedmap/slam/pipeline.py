@@ -66,8 +66,11 @@ def run_slam(
     config: SlamConfig | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    rerun: Path | None = None,
 ) -> SlamResult:
-    """Run the SLAM pipeline on ``dataset`` and write the results into ``out`` (None: no files)."""
+    """Run the SLAM pipeline on ``dataset`` and write the results into ``out`` (None: no files).
+
+    ``rerun``: also record the run (images, matches, poses, growing seed map) into this ``.rrd`` file."""
     from seedmap.associate import make_matcher
     from seedmap.io import open_dataset
     from seedmap.io.atomic import check_output_parent
@@ -88,7 +91,10 @@ def run_slam(
     det = _detector_for(detector, Path(dataset)) if matcher.strip().lower() == "seeds" else None
     m = make_matcher(matcher, calib, detector=det, cfg=cfg)
     first = gt.poses[0] if gt is not None and len(gt) else np.eye(4)
-    slam = SemanticSlam(calib, m, cfg, first_pose=first)
+    from seedmap.viz.run_hooks import SlamRerun
+
+    rlog = SlamRerun(rerun, calib, m, gt)  # a no-op without --rerun
+    slam = SemanticSlam(calib, rlog.matcher, cfg, first_pose=first)
 
     rows: list[dict] = []
     timings: dict[str, list[float]] = {}
@@ -106,6 +112,7 @@ def run_slam(
             rows.append({"frame": i, "keypoints_left": len(feats.kp_left), "keypoints_right": len(feats.kp_right),
                          "stereo": res.n_stereo, "temporal": res.n_temporal, "inliers": res.n_inliers,
                          "landmarks_seen": res.n_landmarks_seen, "ok": int(res.ok)})
+            rlog.frame(frame, feats, res, slam)
             advance()
             if not res.ok:
                 break
@@ -117,6 +124,7 @@ def run_slam(
     ms["final_batch_total"] = t_final
     ms["total_per_frame"] = (time.perf_counter() - t_all) * 1e3 / max(len(rows), 1)
     lm = slam.landmarks(values)
+    rlog.finish(traj, lm)
     metrics = compute_slam_metrics(
         traj, gt, frames=n, lost_frame=slam.lost_frame, lost_reason=slam.lost_reason,
         range_length=range_length_of(dataset), ms_per_frame=ms, online=online,
@@ -131,6 +139,9 @@ def run_slam(
         with atomic_output_dir(out, overwrite=overwrite) as tmp:
             dump_config(cfg, tmp / "config.yaml")
             write_outputs(tmp, result, online, gt, lm, rows, cfg, dataset)
+            from seedmap.viz.run_hooks import slam_html_report
+
+            slam_html_report(tmp, result, gt, lm, rows, timings, dataset)
     return result
 
 
