@@ -34,9 +34,9 @@ class FastConfig(ConfigModel):
     dog_inner: float = 0.6
     dog_outer: float = 1.13
     #: a pixel belongs to a seed region when its DoG response exceeds this (grey levels)
-    region_min: float = -3.0
+    region_min: float = -6.0
     #: minimum blob (DoG) response of a seed, in grey levels
-    min_response: float = 15.0
+    min_response: float = 12.0
     #: a seed's smoothed brightness must exceed this (grey levels; flash imaging: dark far field)
     min_brightness: float = 70.0
     #: leaf suppression: f -= (max_green_excess / 16) * max(G - R, 0)
