@@ -86,7 +86,7 @@ def main() -> None:
     res = {"machine": platform.processor() or platform.machine(), "image": [calib.width, calib.height],
            "baseline_sift_bf_stereo_s": t_sift, "association": []}
     for mode in ("none", "consensus"):
-        cfg = SemanticConfig(refine=mode)
+        cfg = SemanticConfig(refine=mode, temporal_prediction=mode != "none")
         for n in (500, 1000, 2000):
             a, b = _subsample(d0, n, np.random.default_rng(n)), _subsample(d1, n, np.random.default_rng(n + 1))
             m = SeedMatcher(calib, cfg=cfg)
@@ -104,7 +104,8 @@ def main() -> None:
     # per-frame pipeline on a short synthetic sequence (~1,000 keypoints per image)
     for mode in ("none", "consensus"):
         cfg = SlamConfig()
-        cfg.association = SemanticConfig(refine=mode)
+        cfg.association.refine = mode
+        cfg.association.temporal_prediction = mode != "none"
         rng2 = np.random.default_rng(1)
         rs = make_range(rng2, length=0.2 if args.quick else 0.4, seeds_per_panicle=150)
         m = SeedMatcher(rs.calib, cfg=cfg.association)
