@@ -216,7 +216,7 @@ class SemanticSlam:
             n_inl = 0 if est is None else int(est.inliers.sum())
             res.n_inliers = n_inl
             if n_inl < self.cfg.lost.min_inliers:
-                return self._declare_lost(f, f"too few verified 3D seed matches ({n_inl} < "
+                return self._declare_lost(f, f"too few verified 3D matches ({n_inl} < "
                                              f"{self.cfg.lost.min_inliers}; {len(tmatch)} temporal matches)", res)
             T_prev = self.online_poses[-1]
             T = T_prev @ est.T_prev_cur
