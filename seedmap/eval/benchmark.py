@@ -956,13 +956,16 @@ class TuneRow:
     overrides: dict[str, Any]
     record: RunRecord
 
-    def score(self) -> tuple[float, float, float]:
-        """Ranking: GT-validated fraction, then fraction mapped, then lower ATE."""
+    def score(self) -> tuple[float, float, float, float]:
+        """Ranking: GT-validated fraction, fraction mapped, mean RANSAC-verified matches per frame
+        pair (separates settings that all get lost early), then lower ATE."""
         r = self.record
         if r.status != "ok":
-            return (-1.0, -1.0, -math.inf)
-        return (r.gt_mdm_fraction or 0.0, r.mdm_fraction or 0.0, -(r.ate_rmse_m if r.ate_rmse_m is not None
-                                                                     else math.inf))
+            return (-1.0, -1.0, -1.0, -math.inf)
+        inl = r.inlier_matches[1:]
+        mean_inl = float(np.mean(inl)) if inl else 0.0
+        return (r.gt_mdm_fraction or 0.0, r.mdm_fraction or 0.0, mean_inl,
+                -(r.ate_rmse_m if r.ate_rmse_m is not None else math.inf))
 
 
 def _label(ov: dict[str, Any]) -> str:
@@ -1006,7 +1009,7 @@ def tune_baselines(
 
     Stage 1 runs the facts.md defaults and every single-parameter variation of
     :data:`TUNING_GRID`; stage 2 combines the best value of every parameter that beat the
-    defaults. The winner (by GT-validated fraction mapped, then fraction mapped, then ATE) is
+    defaults. The winner (by :meth:`TuneRow.score`) is
     returned per kind as ``{"overrides", "default", "best", "runs"}`` and written to
     ``tune.json`` / ``tune.csv`` / ``tune.md``; results resume like the benchmark.
     """
@@ -1088,10 +1091,12 @@ def tune_baselines(
     atomic_write_text(out / "tune.csv", buf.getvalue())
     atomic_write_text(out / "tune.json", json.dumps(summary, indent=2, default=str))
     md_rows = [[r.kind, r.label, _fmt_m(r.record, "mdm_m"), _fmt_m(r.record, "gt_mdm_m"),
-                _fmt_m(r.record, "ate_rmse_m", 3),
+                _fmt_m(r.record, "ate_rmse_m", 3), f"{r.score()[2]:.1f}",
                 "" if r.record.ms_per_frame is None else f"{r.record.ms_per_frame:.0f}"] for r in rows]
     md = (f"# Baseline tuning on {dataset}\n\nSelection: GT-validated fraction mapped, then fraction mapped, "
-          f"then ATE.\n\n" + _md_table(["kind", "setting", "MDM (m)", "GT-MDM (m)", "ATE (m)", "ms/frame"], md_rows)
+          f"then RANSAC-verified matches per frame pair, then ATE.\n\n"
+          + _md_table(["kind", "setting", "MDM (m)", "GT-MDM (m)", "ATE (m)", "verified matches / pair", "ms/frame"],
+                      md_rows)
           + "\n**Chosen**\n\n" + "\n".join(f"- {k}: {v.get('note') or _label(v['overrides'])}"
                                           for k, v in summary.items()) + "\n")
     atomic_write_text(out / "tune.md", md)
