@@ -23,6 +23,14 @@ from pathlib import Path
 TINY = ["world.length=0.3", "world.gap=0.3", "camera.scale=0.15", "imaging.supersample=1"]
 
 
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and its finished children (the pool's workers)."""
+    import resource
+
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ranges", type=int, default=4, help="ranges in the field (copies of one)")
@@ -48,10 +56,13 @@ def main() -> None:
         cfg = load_config(SlamConfig, None, [f"max_frames={args.frames}"])
         walls: dict[int, float] = {}
         mdm: dict[int, list] = {}
+        cpus: dict[int, float] = {}
         for w in (1, args.workers):
+            c0 = _cpu_s()
             t0 = time.perf_counter()
             s = run_batch(field, td / f"out{w}", config=cfg, workers=w, progress=False)
             walls[w] = time.perf_counter() - t0
+            cpus[w] = _cpu_s() - c0
             if s.n_failed:
                 raise SystemExit(f"{s.n_failed} ranges failed: {[r.error for r in s.ranges if r.error]}")
             mdm[w] = [r.mdm_m for r in s.ranges]
@@ -64,6 +75,12 @@ def main() -> None:
         f"wall_s_{args.workers}_workers": round(walls[args.workers], 3),
         "speedup": round(walls[1] / walls[args.workers], 3),
         "same_results": mdm[1] == mdm[args.workers],
+        # CPU seconds (this process + its workers) / wall seconds = cores actually obtained; on a shared
+        # machine a value near 1 for N workers means they were starved, not that the batch is serial
+        "cpu_s_1_worker": round(cpus[1], 3),
+        f"cpu_s_{args.workers}_workers": round(cpus[args.workers], 3),
+        "cores_used_1_worker": round(cpus[1] / walls[1], 2),
+        f"cores_used_{args.workers}_workers": round(cpus[args.workers] / walls[args.workers], 2),
         "simulate_s": round(t_sim, 3),
         "cpu_count": os.cpu_count(),
         "load_average_1min_at_end": round(os.getloadavg()[0], 2),  # other work on the machine skews both runs
