@@ -622,7 +622,7 @@ def batch_cmd(
     out: Path = typer.Option(..., "--out", "-o", help="Results: out/<range path>/ + summary.csv/.md/.json."),
     workers: int = typer.Option(1, "--workers", "-j", help="Ranges run in parallel (processes or Ray CPUs)."),
     ray: Optional[str] = typer.Option(None, "--ray", help="Ray cluster address (auto, ray://host:10001) or "
-                                      "'local' to start one here (needs seedmap[cluster])."),
+                                      "'local' to start one here (needs Ray: the seedmap 'cluster' extra)."),
     matcher: str = typer.Option("seeds", "--matcher", "-m", help="seeds | sift | orb | akaze | surf"),
     detector: str = typer.Option("gt", "--detector", "-d", help="Seed detector for --matcher seeds (gt = oracle)."),
     config: Optional[Path] = ConfigOpt,
