@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Literal, Sequence
 
+from seedmap.io.options import DatasetOptions
 from seedmap.config import ConfigModel, apply_overrides
 
 
@@ -67,6 +68,8 @@ class DetectConfig(ConfigModel):
     gt: GtConfig = GtConfig()
     fast: FastConfig = FastConfig()
     learned: LearnedConfig = LearnedConfig()
+    #: how the input is opened (format, bag topics, calibration file...)
+    dataset: DatasetOptions = DatasetOptions()
 
 
 def resolve_config(cfg: DetectConfig | None, overrides: Sequence[str] = ()) -> DetectConfig:

@@ -27,10 +27,9 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
     timing) and, with ``overlay``, ``overlay/{left,right}/NNNNNN.png`` with the ellipses drawn.
     """
     from seedmap.config import dump_config
-    from seedmap.io import open_dataset
 
     cfg = config or DetectConfig()
-    seq = open_dataset(dataset)
+    seq = cfg.dataset.open(dataset)
     det = make_detector(detector, dataset=seq if detector == "gt" else None, weights=weights, config=cfg)
     idx = list(range(len(seq)))[frames] if frames is not None else list(range(len(seq)))
     if not idx:

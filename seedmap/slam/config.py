@@ -12,6 +12,7 @@ from pydantic import Field
 
 from seedmap.associate.base import GateConfig
 from seedmap.associate.semantic import SemanticConfig
+from seedmap.io.options import DatasetOptions
 from seedmap.config import ConfigModel
 
 
@@ -84,6 +85,8 @@ class SlamConfig(ConfigModel):
     backend: BackendConfig = Field(default_factory=BackendConfig)
     lost: LostConfig = Field(default_factory=LostConfig)
     cluster: ClusterConfig = Field(default_factory=ClusterConfig)
+    #: how the input is opened (format, bag topics, calibration file...): seedmap.io.options.DatasetOptions
+    dataset: DatasetOptions = Field(default_factory=DatasetOptions)
     #: parameters of the descriptor baselines (seedmap.associate.features.FeatureMatcherConfig)
     features: dict[str, Any] = Field(default_factory=dict)
     #: process at most this many frames (None = all)

@@ -72,7 +72,6 @@ def run_slam(
 
     ``rerun``: also record the run (images, matches, poses, growing seed map) into this ``.rrd`` file."""
     from seedmap.associate import make_matcher
-    from seedmap.io import open_dataset
     from seedmap.io.atomic import check_output_parent
     from seedmap.slam.core import SemanticSlam
 
@@ -82,7 +81,7 @@ def run_slam(
         check_output_parent(out)
         if out.exists() and any(out.iterdir()) and not overwrite:
             raise SeedmapError("output folder exists and is not empty (pass --overwrite to replace it)", out)
-    ds = open_dataset(dataset)
+    ds = cfg.dataset.open(dataset)
     calib = ds.calib
     gt = ds.gt_trajectory()
     n = len(ds) if cfg.max_frames is None else min(len(ds), cfg.max_frames)
