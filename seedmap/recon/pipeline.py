@@ -241,14 +241,10 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
 
 
 def write_ply(path: Path, xyz: np.ndarray, rgb: np.ndarray, label: np.ndarray) -> None:
-    """Binary PLY via Open3D's tensor API with an extra per-point ``seed_label`` (int32, -1 = none)."""
-    import open3d as o3d
+    """Binary PLY with colours and an extra per-point ``seed_label`` (int32, -1 = none)."""
+    from seedmap.io.pointcloud import write_labelled_ply
 
-    pc = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(xyz, np.float32)))
-    pc.point.colors = o3d.core.Tensor(np.ascontiguousarray(rgb, np.float32) / 255.0)
-    pc.point.seed_label = o3d.core.Tensor(np.ascontiguousarray(label.reshape(-1, 1), np.int32))
-    if not o3d.t.io.write_point_cloud(str(path), pc):
-        raise InputError("could not write the point cloud", path)
+    write_labelled_ply(path, xyz, {"seed_label": label}, rgb=rgb)
 
 
 def _csv(header: str, rows: np.ndarray, fmt: str) -> str:

@@ -25,7 +25,7 @@ def cluster_panicles(xyz: np.ndarray, eps_m: float, min_points: int) -> np.ndarr
 
 
 def write_landmarks(folder: Path, lm, clusters: np.ndarray) -> None:
-    import open3d as o3d
+    from seedmap.io.pointcloud import write_labelled_ply
 
     buf = io.StringIO()
     buf.write("landmark_id,seed_id,cluster_id,x,y,z,n_obs\n")
@@ -33,11 +33,8 @@ def write_landmarks(folder: Path, lm, clusters: np.ndarray) -> None:
         x, y, z = lm.xyz[i]
         buf.write(f"{lm.ids[i]},{lm.seed_ids[i]},{clusters[i]},{x:.6f},{y:.6f},{z:.6f},{lm.n_obs[i]}\n")
     atomic_write_text(folder / "landmarks.csv", buf.getvalue())
-    pc = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.asarray(lm.xyz, np.float32).reshape(-1, 3)))
-    pc.point["seed_id"] = o3d.core.Tensor(np.asarray(lm.seed_ids, np.int32).reshape(-1, 1))
-    pc.point["landmark_id"] = o3d.core.Tensor(np.asarray(lm.ids, np.int32).reshape(-1, 1))
-    pc.point["cluster_id"] = o3d.core.Tensor(np.asarray(clusters, np.int32).reshape(-1, 1))
-    o3d.t.io.write_point_cloud(str(folder / "landmarks.ply"), pc, write_ascii=False)
+    write_labelled_ply(folder / "landmarks.ply", lm.xyz,
+                       {"seed_id": lm.seed_ids, "landmark_id": lm.ids, "cluster_id": clusters})
 
 
 def plot_topview(path: Path, est: Trajectory, gt: Trajectory | None, lm_xyz: np.ndarray, title: str) -> None:
