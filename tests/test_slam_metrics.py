@@ -65,3 +65,22 @@ def test_se3_alignment_removes_a_constant_offset_but_first_pose_alignment_does_n
     drift = _line(drift_from=0, drift_rate=0.001)
     m = compute_slam_metrics(drift, gt, frames=30, lost_frame=None, lost_reason=None)
     assert m.ate_first_pose_rmse_m > m.ate_rmse_m > 0
+
+
+def test_metrics_pair_poses_by_time_when_gt_starts_late():
+    """A GT file that starts 3 frames late must not shift every pair by 3 frames."""
+    from seedmap.eval.slam_metrics import compute_slam_metrics
+    from seedmap.records import Trajectory
+
+    n = 20
+    t = np.arange(n) * 0.2
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, 0, 3] = 0.04 * np.arange(n)
+    est = Trajectory(t, T)
+    gt_full = Trajectory(t, T.copy())
+    gt_late = Trajectory(t[3:], T[3:].copy())
+    m_full = compute_slam_metrics(est, gt_full, frames=n, lost_frame=None, lost_reason=None)
+    m_late = compute_slam_metrics(est, gt_late, frames=n, lost_frame=None, lost_reason=None)
+    assert m_full.ate_rmse_m < 1e-9
+    assert m_late.ate_rmse_m < 1e-9  # index pairing would give a 0.12 m error here
+    assert m_late.rpe_trans_rmse_m < 1e-9

@@ -61,6 +61,27 @@ def _evo_traj(t: Trajectory):
     return PoseTrajectory3D(poses_se3=[np.asarray(p) for p in t.poses], timestamps=np.asarray(t.timestamps))
 
 
+def sync_by_time(est: Trajectory, gt: Trajectory, tol_s: float | None = None) -> tuple[Trajectory, Trajectory]:
+    """Pair every estimated pose with the ground-truth pose nearest in time (within ``tol_s``).
+
+    Real datasets' ground truth may start late, end early or be sampled differently (EuRoC, KITTI
+    subsets), so metrics never pair poses by index. ``tol_s`` defaults to half the median frame interval of
+    ``est`` (1 ms when it has fewer than two poses). Returns the two trajectories restricted to the pairs.
+    """
+    if len(est) == 0 or len(gt) == 0:
+        return Trajectory(np.zeros(0), np.zeros((0, 4, 4))), Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
+    if tol_s is None:
+        tol_s = 0.5 * float(np.median(np.diff(est.timestamps))) if len(est) > 1 else 1e-3
+    order = np.argsort(gt.timestamps)
+    tg = gt.timestamps[order]
+    j = np.clip(np.searchsorted(tg, est.timestamps), 1, len(tg) - 1) if len(tg) > 1 else np.zeros(len(est), int)
+    if len(tg) > 1:
+        j = np.where(np.abs(tg[j - 1] - est.timestamps) <= np.abs(tg[j] - est.timestamps), j - 1, j)
+    ok = np.abs(tg[j] - est.timestamps) <= tol_s
+    gi = order[j[ok]]
+    return (Trajectory(est.timestamps[ok], est.poses[ok]), Trajectory(gt.timestamps[gi], gt.poses[gi]))
+
+
 def ate_rmse(est: Trajectory, gt: Trajectory, align: str = "se3") -> float | None:
     """evo APE (translation, RMSE) of ``est`` vs ``gt`` (same length, frame-by-frame).
 
@@ -138,7 +159,12 @@ def compute_slam_metrics(
         range_length = float(gt.path_length()[-1])
     frac = (mdm / range_length) if range_length else None
     gt_mdm = gt_frac = ate = ate_first = rpe = ate_on = ate_frac = None
+    gt_full = gt
     if gt is not None and len(gt):
+        if online is not None and len(online):
+            online, gt_online = sync_by_time(online, gt_full)
+        est, gt = sync_by_time(est, gt_full)
+    if gt_full is not None and len(gt_full):
         gt_mdm, _ = gt_validated_mdm(est, gt)
         gt_frac = (gt_mdm / range_length) if range_length else None
     if gt is not None and len(gt) and len(est):
@@ -146,7 +172,7 @@ def compute_slam_metrics(
         ate_first = ate_rmse(est, gt, "first")
         rpe = rpe_trans_rmse(est, gt)
         if online is not None and len(online):
-            ate_on = ate_rmse(online, gt, "se3")
+            ate_on = ate_rmse(online, gt_online, "se3")
         dist = float(Trajectory(gt.timestamps[: len(est)], gt.poses[: len(est)]).path_length()[-1])
         if ate is not None and dist > 0:
             ate_frac = ate / dist

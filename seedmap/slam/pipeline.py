@@ -89,7 +89,12 @@ def run_slam(
         raise SeedmapError("dataset has no frames", dataset)
     det = _detector_for(detector, Path(dataset)) if matcher.strip().lower() == "seeds" else None
     m = make_matcher(matcher, calib, detector=det, cfg=cfg)
-    first = gt.poses[0] if gt is not None and len(gt) else np.eye(4)
+    first = np.eye(4)  # the prior on the first pose: GT at the first frame's time when GT covers it
+    if gt is not None and len(gt):
+        k = int(np.argmin(np.abs(gt.timestamps - float(ds.timestamps[0]))))
+        dt = float(np.median(np.diff(ds.timestamps))) if len(ds.timestamps) > 1 else 1e-3
+        if abs(gt.timestamps[k] - float(ds.timestamps[0])) <= 0.5 * dt:
+            first = gt.poses[k]
     from seedmap.viz.run_hooks import SlamRerun
 
     rlog = SlamRerun(rerun, calib, m, gt)  # a no-op without --rerun
