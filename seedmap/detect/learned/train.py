@@ -217,14 +217,12 @@ def detector_val_metrics(model: nn.Module, arch: DetectorArch, items: list[tuple
             "val_f1": 2 * p * r / (p + r) if p + r > 0 else 0.0}
 
 
-def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, val_source=None,
-                   resume: bool = False, overwrite: bool = False, progress: bool = True) -> Path:
-    """Train Faster R-CNN (VGG16 stride-8) on ``source`` (labelled images); returns the weights path."""
-    cfg = cfg or DetectorTrainConfig()
+def _start_run(kind: str, cfg, source, val_source, out: Path, resume: bool, overwrite: bool):
+    """Shared start of a training run: threads, run folder + config, train/validation split, torch seed."""
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
-    run = _Run(out, "detector", resume, overwrite)
-    atomic_write_text(run.out / "detector_train_config.yaml", config_to_yaml(cfg))
+    run = _Run(out, kind, resume, overwrite)
+    atomic_write_text(run.out / f"{kind}_train_config.yaml", config_to_yaml(cfg))
     if val_source is None:
         tr_idx, va_idx = split_indices(len(source), cfg.val_fraction)
         val_source = source
@@ -233,6 +231,14 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
     if not tr_idx:
         raise InputError("no training images", getattr(source, "path", None))
     torch.manual_seed(cfg.seed)
+    return run, tr_idx, va_idx, val_source
+
+
+def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, val_source=None,
+                   resume: bool = False, overwrite: bool = False, progress: bool = True) -> Path:
+    """Train Faster R-CNN (VGG16 stride-8) on ``source`` (labelled images); returns the weights path."""
+    cfg = cfg or DetectorTrainConfig()
+    run, tr_idx, va_idx, val_source = _start_run("detector", cfg, source, val_source, out, resume, overwrite)
     model = build_frcnn(cfg.arch)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -378,18 +384,7 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
                     resume: bool = False, overwrite: bool = False, progress: bool = True) -> Path:
     """Train pix2pix (U-Net + PatchGAN, GAN + λ·L1) on box crops of GT instances."""
     cfg = cfg or SegmenterTrainConfig()
-    if cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
-    run = _Run(out, "segmenter", resume, overwrite)
-    atomic_write_text(run.out / "segmenter_train_config.yaml", config_to_yaml(cfg))
-    if val_source is None:
-        tr_idx, va_idx = split_indices(len(source), cfg.val_fraction)
-        val_source = source
-    else:
-        tr_idx, va_idx = list(range(len(source))), list(range(len(val_source)))
-    if not tr_idx:
-        raise InputError("no training images", getattr(source, "path", None))
-    torch.manual_seed(cfg.seed)
+    run, tr_idx, va_idx, val_source = _start_run("segmenter", cfg, source, val_source, out, resume, overwrite)
     arch = cfg.arch
     gen = UNetGenerator(arch.crop_size, arch.ngf)
     disc = PatchDiscriminator(arch.ndf)
