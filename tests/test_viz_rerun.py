@@ -7,20 +7,9 @@ import pytest
 
 from seedmap.records import Detections, Matches, StereoCalib, Trajectory
 from seedmap.viz.rerun_log import RerunLogger, ellipse_polylines, rrd_entity_paths
+from rerun_read import rrd_column  # tests/ is on sys.path (pytest rootdir import mode)
 
 CALIB = StereoCalib(fx=200.0, fy=200.0, cx=79.5, cy=59.5, baseline=0.11, width=160, height=120)
-
-
-def _column(path, entity: str, name: str) -> list:
-    from rerun.chunk import RrdReader
-
-    rows = []
-    for ch in RrdReader(str(path)).stream():
-        if ch.entity_path == entity:
-            rb = ch.to_record_batch()
-            if name in rb.schema.names:
-                rows += rb.column(name).to_pylist()
-    return rows
 
 
 def _sequence(n_frames: int = 4, n_seeds: int = 30, seed: int = 0):
@@ -86,11 +75,11 @@ def test_records_a_sequence_that_reads_back(tmp_path):
     assert ents["/world/trajectory/ground_truth"] == 1
 
     # the numbers survive the round trip: last landmark map and the keypoints of frame 0
-    lm = _column(path, "/world/landmarks", "Points3D:positions")
+    lm = rrd_column(path, "/world/landmarks", "Points3D:positions")
     np.testing.assert_allclose(np.asarray(lm[-1], float), seeds[:25], atol=1e-6)
-    kp = _column(path, "/cam/left/keypoints", "Points2D:positions")
+    kp = rrd_column(path, "/cam/left/keypoints", "Points2D:positions")
     np.testing.assert_allclose(np.asarray(kp[0], float), frames[0][3].keypoints, atol=1e-3)
-    ids = _column(path, "/world/landmarks", "Points3D:class_ids")
+    ids = rrd_column(path, "/world/landmarks", "Points3D:class_ids")
     assert list(ids[-1]) == list(range(25))
 
 
@@ -100,7 +89,7 @@ def test_image_scale_keeps_overlays_aligned(tmp_path):
     with RerunLogger(path, image_scale=0.5, jpeg_quality=None) as log:
         k, t, T, dl, dr = frames[0]
         log.log_stereo_frame(k, t, np.zeros((120, 160, 3), np.uint8), None, det_left=dl)
-    kp = np.asarray(_column(path, "/cam/left/keypoints", "Points2D:positions")[0], float)
+    kp = np.asarray(rrd_column(path, "/cam/left/keypoints", "Points2D:positions")[0], float)
     np.testing.assert_allclose(kp, (dl.keypoints + 0.5) * 0.5 - 0.5, atol=1e-3)
 
 
@@ -115,7 +104,7 @@ def test_reconstruction_entities(tmp_path):
     ents = rrd_entity_paths(tmp_path / "recon.rrd")
     assert {"/recon/views/0/cloud", "/recon/views/2/pose", "/recon/cloud", "/recon/seeds",
             "/world/trajectory/forward_kinematics"} <= set(ents)
-    seeds = _column(tmp_path / "recon.rrd", "/recon/seeds", "Points3D:positions")
+    seeds = rrd_column(tmp_path / "recon.rrd", "/recon/seeds", "Points3D:positions")
     np.testing.assert_allclose(np.asarray(seeds[0], float), cloud[:7], atol=1e-6)
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from seedmap import cli
 from seedmap.viz.rerun_log import rrd_entity_paths
+from rerun_read import rrd_column  # tests/ is on sys.path (pytest rootdir import mode)
 
 TINY_RANGE = ["world.length=0.3", "world.gap=0.3", "camera.scale=0.15", "imaging.supersample=1"]
 
@@ -19,18 +20,6 @@ def _run(args: list[str], monkeypatch) -> int:
     with pytest.raises(SystemExit) as e:
         cli.main()
     return int(e.value.code or 0)
-
-
-def _column(path, entity: str, name: str) -> list:
-    from rerun.chunk import RrdReader
-
-    rows = []
-    for ch in RrdReader(str(path)).stream():
-        if ch.entity_path == entity:
-            rb = ch.to_record_batch()
-            if name in rb.schema.names:
-                rows += rb.column(name).to_pylist()
-    return rows
 
 
 def _html_checks(report, *must: str) -> str:
@@ -65,13 +54,13 @@ def test_slam_rerun_and_report(tmp_path, monkeypatch):
     assert ents["/world/landmarks"] == 3 and ents["/world/landmarks_final"] == 1
     assert "/world/trajectory/ground_truth" in ents
     # the recorded final trajectory is the one written to trajectory.tum
-    final = np.asarray(_column(rrd, "/world/trajectory/final", "LineStrips3D:strips")[0][0], float)
+    final = np.asarray(rrd_column(rrd, "/world/trajectory/final", "LineStrips3D:strips")[0][0], float)
     np.testing.assert_allclose(final, read_tum(out / "trajectory.tum").positions, atol=1e-5)
     lm = np.loadtxt(out / "landmarks.csv", delimiter=",", skiprows=1).reshape(-1, 7)
-    rec_lm = np.asarray(_column(rrd, "/world/landmarks_final", "Points3D:positions")[0], float)
+    rec_lm = np.asarray(rrd_column(rrd, "/world/landmarks_final", "Points3D:positions")[0], float)
     np.testing.assert_allclose(rec_lm, lm[:, 3:6], atol=1e-5)
     # the stereo match lines of frame 0 are horizontal (rectified pair): same row at both ends
-    strips = _column(rrd, "/cam/left/stereo_matches", "LineStrips2D:strips")[0]
+    strips = rrd_column(rrd, "/cam/left/stereo_matches", "LineStrips2D:strips")[0]
     assert len(strips) > 10 and all(abs(s[0][1] - s[1][1]) < 1e-6 and s[0][0] > s[1][0] for s in strips)
 
 
@@ -87,7 +76,7 @@ def test_reconstruct_rerun_and_report(tmp_path, monkeypatch):
     ents = rrd_entity_paths(rrd)
     assert {"/recon/cloud", "/recon/seeds", "/world/trajectory/forward_kinematics"} <= set(ents)
     assert sum(e.startswith("/recon/views/") and e.endswith("/pose") for e in ents) == 4
-    seeds = np.asarray(_column(rrd, "/recon/seeds", "Points3D:positions")[0], float)
+    seeds = np.asarray(rrd_column(rrd, "/recon/seeds", "Points3D:positions")[0], float)
     assert len(seeds) == m["seed_count"]
     csv_seeds = np.loadtxt(out / "seeds.csv", delimiter=",", skiprows=1, ndmin=2)
     np.testing.assert_allclose(seeds, csv_seeds[:, 1:4], atol=1e-4)
