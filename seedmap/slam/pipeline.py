@@ -91,10 +91,12 @@ def run_slam(
     m = make_matcher(matcher, calib, detector=det, cfg=cfg)
     first = np.eye(4)  # the prior on the first pose: GT at the first frame's time when GT covers it
     if gt is not None and len(gt):
-        k = int(np.argmin(np.abs(gt.timestamps - float(ds.timestamps[0]))))
-        dt = float(np.median(np.diff(ds.timestamps))) if len(ds.timestamps) > 1 else 1e-3
-        if abs(gt.timestamps[k] - float(ds.timestamps[0])) <= 0.5 * dt:
-            first = gt.poses[k]
+        from seedmap.eval.slam_metrics import sync_by_time
+
+        dt = float(np.median(np.diff(ds.timestamps))) if len(ds.timestamps) > 1 else 2e-3
+        _, gt0 = sync_by_time(Trajectory(ds.timestamps[:1], np.eye(4)[None]), gt, 0.5 * dt)
+        if len(gt0):
+            first = gt0.poses[0]
     from seedmap.viz.run_hooks import SlamRerun
 
     rlog = SlamRerun(rerun, calib, m, gt)  # a no-op without --rerun
