@@ -232,14 +232,9 @@ class FeatureMatcher:
         if desc_a is None or desc_b is None or len(desc_a) == 0 or len(desc_b) == 0:
             return Matches()
         if self.cfg.gate_first:
+            # the gate predicates broadcast: (na, 1) x (1, nb) indices give the (na, nb) allowed mask
             na, nb = len(kp_a), len(kp_b)
-            mask = np.zeros((na, nb), np.uint8)
-            step = max(1, 2_000_000 // max(nb, 1))  # row blocks keep the temporaries small
-            for s in range(0, na, step):
-                rows = np.arange(s, min(s + step, na))
-                ia = np.repeat(rows, nb)
-                ib = np.tile(np.arange(nb), len(rows))
-                mask[rows] = gate(ia, ib).reshape(len(rows), nb)
+            mask = gate(np.arange(na)[:, None], np.arange(nb)[None, :]).astype(np.uint8)
             if not mask.any():
                 return Matches()
             knn = self._bf.knnMatch(desc_a, desc_b, k=2, mask=mask)
@@ -270,16 +265,18 @@ class FeatureMatcher:
         return (u >= border) & (u <= self.calib.width - 1 - border)
 
     def stereo_gate(self, kp_l: np.ndarray, kp_r: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-        """Pair predicate for left<->right: |dv|, minimum disparity, border margins (scaled px)."""
+        """Pair predicate for left<->right: |dv|, minimum disparity, border margins (scaled px).
+
+        Index arrays broadcast (e.g. ``(na, 1)`` and ``(1, nb)`` give an ``(na, nb)`` mask)."""
         g = self.gates
 
         def gate(il: np.ndarray, ir: np.ndarray) -> np.ndarray:
             a, b = kp_l[il], kp_r[ir]
             return (
-                (np.abs(a[:, 1] - b[:, 1]) <= g.stereo_max_dy_px)
-                & (a[:, 0] - b[:, 0] >= g.stereo_min_disparity_px)
-                & self._inside(a[:, 0], g.stereo_border_px)
-                & self._inside(b[:, 0], g.stereo_border_px)
+                (np.abs(a[..., 1] - b[..., 1]) <= g.stereo_max_dy_px)
+                & (a[..., 0] - b[..., 0] >= g.stereo_min_disparity_px)
+                & self._inside(a[..., 0], g.stereo_border_px)
+                & self._inside(b[..., 0], g.stereo_border_px)
             )
 
         return gate
@@ -294,10 +291,10 @@ class FeatureMatcher:
         def gate(ip: np.ndarray, ic: np.ndarray) -> np.ndarray:
             a, b = kp_prev[ip], kp_cur[ic]
             return (
-                (np.abs(a[:, 1] - b[:, 1]) <= max_dy)
-                & (g.travel_sign * (b[:, 0] - a[:, 0]) >= g.temporal_min_shift_px)
-                & self._inside(a[:, 0], g.temporal_border_px)
-                & self._inside(b[:, 0], g.temporal_border_px)
+                (np.abs(a[..., 1] - b[..., 1]) <= max_dy)
+                & (g.travel_sign * (b[..., 0] - a[..., 0]) >= g.temporal_min_shift_px)
+                & self._inside(a[..., 0], g.temporal_border_px)
+                & self._inside(b[..., 0], g.temporal_border_px)
             )
 
         return gate
