@@ -26,6 +26,7 @@
 from __future__ import annotations
 
 import io
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -262,7 +263,9 @@ class SeedmapDataset:
         p = self.root / "gt" / "instances" / cam / f"{i:06d}.csv"
         if not p.is_file():
             raise InputError("ground-truth instance table not found", p)
-        a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        with warnings.catch_warnings():  # a frame without seeds (gaps, blank frames) has a header only
+            warnings.simplefilter("ignore", UserWarning)
+            a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
         if a.size == 0:
             return Instances.empty()
         return Instances(
