@@ -84,6 +84,11 @@ class _PanicleBVH:
         self.scene.add_triangles(o3d.core.Tensor.from_numpy(V), o3d.core.Tensor.from_numpy(F))
         fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
         self.face_normals = (fn / np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-20)).astype(np.float32)
+        # proxies for pixel culling (rest frame): every seed triangle lies inside the sphere of the
+        # seed's largest semi-axis (icosphere vertices are on the ellipsoid); rachis triangles as-is
+        self.seed_xyz = world.seeds.xyz[s].copy()
+        self.seed_r = world.seeds.radii[s].max(axis=1)
+        self.rachis_tri = p.rachis_vertices[p.rachis_triangles]  # (T, 3, 3)
 
 
 def _panicle_bvh(world: World, k: int) -> _PanicleBVH:
@@ -96,6 +101,90 @@ def _panicle_bvh(world: World, k: int) -> _PanicleBVH:
     while len(cache) > MAX_CACHED_PANICLES:
         cache.popitem(last=False)
     return bvh
+
+
+PIX_MARGIN = 1.5  # px around projected proxies: float32 rays, and sub-samples up to 0.5 px off a centre
+
+
+@dataclass
+class _Cover:
+    """Pixels whose rays may meet one object: a boolean mask over the rectangle ``[r0, r0 + h) x
+    [c0, c0 + w)`` of an ``H x W`` image (``mask=None``: the whole image). Pixel ``[r, c]`` has its
+    centre at ``(u=c, v=r)``."""
+
+    H: int
+    W: int
+    r0: int
+    c0: int
+    mask: np.ndarray | None
+
+    def flat(self) -> np.ndarray:
+        """Row-major indices of the covered pixels."""
+        if self.mask is None:
+            return np.arange(self.H * self.W)
+        rr, cc = np.nonzero(self.mask)
+        return (rr + self.r0) * self.W + (cc + self.c0)
+
+    def lookup(self, pix: np.ndarray) -> np.ndarray:
+        """Indices of the points ``pix`` (N, 2) of (u, v) whose nearest pixel centre is covered."""
+        if self.mask is None:
+            return np.arange(len(pix))
+        h, w = self.mask.shape
+        c = np.floor(pix[:, 0] + 0.5).astype(np.int64) - self.c0
+        r = np.floor(pix[:, 1] + 0.5).astype(np.int64) - self.r0
+        idx = np.nonzero((c >= 0) & (c < w) & (r >= 0) & (r < h))[0]
+        return idx[self.mask[r[idx], c[idx]]]
+
+
+def _sphere_boxes(pc: np.ndarray, r: np.ndarray, calib: StereoCalib, margin: float = PIX_MARGIN) -> np.ndarray:
+    """Conservative pixel boxes ``(u0, v0, u1, v1)`` of spheres (camera frame centres ``pc`` (N, 3),
+    radii ``r`` (N,), metres): the projection of each sphere's bounding cube; a sphere reaching
+    behind the camera gets the whole plane."""
+    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
+    behind = z - r <= 0.01
+    zn = np.where(behind, 1.0, z - r)
+    zf = z + r
+    out = np.empty((len(pc), 4))
+    out[:, 0] = calib.cx + calib.fx * np.minimum((x - r) / zn, (x - r) / zf) - margin
+    out[:, 2] = calib.cx + calib.fx * np.maximum((x + r) / zn, (x + r) / zf) + margin
+    out[:, 1] = calib.cy + calib.fy * np.minimum((y - r) / zn, (y - r) / zf) - margin
+    out[:, 3] = calib.cy + calib.fy * np.maximum((y + r) / zn, (y + r) / zf) + margin
+    out[behind] = (-1e9, -1e9, 1e9, 1e9)
+    return out
+
+
+def _triangle_boxes(tri: np.ndarray, calib: StereoCalib, margin: float = PIX_MARGIN) -> np.ndarray:
+    """Pixel boxes of triangles ``tri`` (T, 3, 3) in the camera frame (whole plane if one reaches
+    behind the camera)."""
+    z = tri[:, :, 2]
+    behind = z.min(axis=1) <= 0.01
+    zs = np.where(behind[:, None], 1.0, z)
+    u = calib.cx + calib.fx * tri[:, :, 0] / zs
+    v = calib.cy + calib.fy * tri[:, :, 1] / zs
+    out = np.column_stack([u.min(1) - margin, v.min(1) - margin, u.max(1) + margin, v.max(1) + margin])
+    out[behind] = (-1e9, -1e9, 1e9, 1e9)
+    return out
+
+
+def _cover_from_boxes(boxes: np.ndarray, H: int, W: int) -> _Cover:
+    """The pixel centres inside any of ``boxes`` (n, 4) of ``(u0, v0, u1, v1)``: a 2-D difference
+    array over the boxes' bounding rectangle (cost O(n + area), whatever the box sizes)."""
+    c0 = np.maximum(np.ceil(boxes[:, 0]), 0)
+    c1 = np.minimum(np.floor(boxes[:, 2]), W - 1)
+    r0 = np.maximum(np.ceil(boxes[:, 1]), 0)
+    r1 = np.minimum(np.floor(boxes[:, 3]), H - 1)
+    ok = (c1 >= c0) & (r1 >= r0)
+    if not ok.any():
+        return _Cover(H, W, 0, 0, np.zeros((0, 0), bool))
+    c0, c1, r0, r1 = (a[ok].astype(np.int64) for a in (c0, c1, r0, r1))
+    R0, C0 = int(r0.min()), int(c0.min())
+    h, w = int(r1.max()) - R0 + 1, int(c1.max()) - C0 + 1
+    r0, r1, c0, c1 = r0 - R0, r1 - R0 + 1, c0 - C0, c1 - C0 + 1
+    idx = np.concatenate([r0 * (w + 1) + c0, r0 * (w + 1) + c1, r1 * (w + 1) + c0, r1 * (w + 1) + c1])
+    wt = np.concatenate([np.ones(len(r0)), -np.ones(len(r0)), -np.ones(len(r0)), np.ones(len(r0))])
+    acc = np.bincount(idx, wt, minlength=(h + 1) * (w + 1)).reshape(h + 1, w + 1)
+    mask = np.cumsum(np.cumsum(acc, axis=0), axis=1)[:h, :w] > 0.5
+    return _Cover(H, W, R0, C0, mask)
 
 
 class _FrameScene:
@@ -176,42 +265,53 @@ class _FrameScene:
         self.seed_start = np.array([p.seed_start for p in world.panicles], np.int64)
 
     # ---- panicle selection ----
-    def pixel_boxes(self, T_wc: np.ndarray, calib: StereoCalib) -> np.ndarray:
-        """Conservative pixel rectangles ``(u0, v0, u1, v1)`` of the active panicles' bounding spheres
-        seen from camera ``T_wc`` (full image where a sphere reaches behind the camera)."""
+    def covers(self, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray,
+               cfg: SimConfig) -> tuple[list[_Cover], list[_Cover]]:
+        """Per active panicle, the pixels of camera ``T_wc`` whose primary rays may hit it, and the
+        pixels whose surface point may be shadowed by it (conservative: a superset of the truth).
+
+        Primary: the projected boxes of the panicle's proxies (one sphere per seed, the rachis
+        triangles) at this instant. Shadows: the segment from a surface point to a flash point ``L``
+        (camera frame, ``L_z ~ 0``) projects to the half-line from the pixel in direction
+        ``(fx L_x, fy L_y)``; where it can meet the panicle (depth >= z_near) it has moved at most
+        ``f |L| / z_near`` pixels, so each proxy box is grown by that much against the flash direction
+        (plus the flash radius)."""
+        H, W = calib.height, calib.width
         R, o = T_wc[:3, :3], T_wc[:3, 3]
+        L = R.T @ (light - o)
+        rho = cfg.imaging.flash_radius
         pc = (self.centers - o) @ R
-        out = np.empty((len(pc), 4))
-        for j, ((x, y, z), r) in enumerate(zip(pc, self.radii, strict=True)):
-            if z - r <= 0.01:
-                out[j] = (-1e9, -1e9, 1e9, 1e9)
+        prim, shad = [], []
+        for j, k in enumerate(self.active):
+            b = self.bvh[int(k)]
+            M = R.T @ self.D[k, :3, :3]
+            tr = R.T @ (self.D[k, :3, 3] - o)
+            boxes = np.vstack([_sphere_boxes(b.seed_xyz @ M.T + tr, b.seed_r, calib),
+                               _triangle_boxes((b.rachis_tri.reshape(-1, 3) @ M.T + tr).reshape(-1, 3, 3), calib)])
+            prim.append(_cover_from_boxes(boxes, H, W))
+            z_near = pc[j, 2] - self.radii[j]
+            if z_near <= 0.05 or abs(L[2]) > 0.5 * z_near:
+                shad.append(_Cover(H, W, 0, 0, None))
                 continue
-            xs = [(x - r) / (z - r), (x - r) / (z + r), (x + r) / (z - r), (x + r) / (z + r)]
-            ys = [(y - r) / (z - r), (y - r) / (z + r), (y + r) / (z - r), (y + r) / (z + r)]
-            out[j] = (calib.cx + calib.fx * min(xs) - 1, calib.cy + calib.fy * min(ys) - 1,
-                      calib.cx + calib.fx * max(xs) + 1, calib.cy + calib.fy * max(ys) + 1)
-        return out
+            sx, sy = calib.fx / (z_near - abs(L[2])), calib.fy / (z_near - abs(L[2]))
+            g = boxes.copy()
+            g[:, 0] -= sx * (max(L[0], 0) + rho) + 1
+            g[:, 2] += sx * (max(-L[0], 0) + rho) + 1
+            g[:, 1] -= sy * (max(L[1], 0) + rho) + 1
+            g[:, 3] += sy * (max(-L[1], 0) + rho) + 1
+            shad.append(_cover_from_boxes(g, H, W))
+        return prim, shad
 
     def _select(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, pix: np.ndarray | None,
-                boxes: np.ndarray | None, grid: tuple[int, int] | None = None) -> list[np.ndarray]:
-        """Per active panicle, the rays that may hit it (sphere test or pixel rectangle)."""
+                covers: list[_Cover] | None, grid: bool = False) -> list[np.ndarray]:
+        """Per active panicle, the rays that may hit it (pixel cover, else a bounding-sphere test)."""
         P = len(self.active)
         if P == 0 or len(d) == 0:
             return [np.zeros(0, np.int64)] * P
-        if grid is not None and boxes is not None:  # rays of all pixels, row-major
-            H, W = grid
-            out = []
-            for b in boxes:
-                c0, c1 = max(0, int(np.ceil(b[0]))), min(W - 1, int(np.floor(b[2])))
-                r0, r1 = max(0, int(np.ceil(b[1]))), min(H - 1, int(np.floor(b[3])))
-                if c1 < c0 or r1 < r0:
-                    out.append(np.zeros(0, np.int64))
-                else:
-                    out.append((np.arange(r0, r1 + 1)[:, None] * W + np.arange(c0, c1 + 1)[None, :]).reshape(-1))
-            return out
-        if pix is not None and boxes is not None:
-            u, v = pix[:, 0], pix[:, 1]
-            return [np.nonzero((u >= b[0]) & (u <= b[2]) & (v >= b[1]) & (v <= b[3]))[0] for b in boxes]
+        if grid and covers is not None:  # rays of all pixels, row-major
+            return [c.flat() for c in covers]
+        if pix is not None and covers is not None:
+            return [c.lookup(pix) for c in covers]
         C = self.centers
         r2 = self.radii ** 2
         if o.shape[0] == 1:
@@ -227,11 +327,11 @@ class _FrameScene:
 
     # ---- queries ----
     def trace(self, o: np.ndarray, d: np.ndarray, pix: np.ndarray | None = None,
-              boxes: np.ndarray | None = None, grid: tuple[int, int] | None = None) -> _Hits:
+              covers: list[_Cover] | None = None, grid: bool = False) -> _Hits:
         """Closest hit of rays ``o + t d`` (``d`` unit float32 (N, 3); ``o`` (1, 3) or (N, 3)).
 
-        ``pix``/``boxes``: pixel coordinates of primary rays and the panicles' pixel rectangles
-        (cheaper than the sphere test); ``grid=(H, W)`` when the rays are all pixels, row-major.
+        ``pix``/``covers``: pixel coordinates of camera rays and the panicles' pixel covers (see
+        ``covers``; cheaper than the sphere test); ``grid=True`` when the rays are all pixels, row-major.
         ``prim``/``bary`` are only meaningful where ``t`` is finite."""
         n = len(d)
         o = np.asarray(o, np.float32)
@@ -248,7 +348,7 @@ class _FrameScene:
             t = np.full(n, np.inf, np.float32)
             prim = np.zeros(n, np.uint32)
             bary = np.zeros((n, 2), np.float32)
-        for j, idx in enumerate(self._select(o, d, t, pix, boxes, grid)):
+        for j, idx in enumerate(self._select(o, d, t, pix, covers, grid)):
             if len(idx) == 0:
                 continue
             k = int(self.active[j])
@@ -276,11 +376,11 @@ class _FrameScene:
         return _Hits(t, cls, obj, prim, bary, seed)
 
     def occluded(self, o: np.ndarray, v: np.ndarray, pix: np.ndarray | None = None,
-                 boxes: np.ndarray | None = None) -> np.ndarray:
+                 covers: list[_Cover] | None = None) -> np.ndarray:
         """True where the segment ``o -> o + v`` (float32 (N, 3), not unit) hits anything.
 
-        ``pix``/``boxes``: for shadow rays of camera pixels, the pixels and per-panicle rectangles
-        outside which a panicle cannot shadow the pixel (see ``shadow_boxes``)."""
+        ``pix``/``covers``: for shadow rays of camera pixels, the pixels and per-panicle shadow covers
+        outside which a panicle cannot shadow the pixel (see ``covers``)."""
         n = len(o)
         occ = np.zeros(n, bool)
         if n == 0:
@@ -293,11 +393,11 @@ class _FrameScene:
             return occ
         length = np.sqrt((v[rem] * v[rem]).sum(1))
         du = v[rem] / np.maximum(length, 1e-12)[:, None]
-        if pix is not None and boxes is not None:
+        if pix is not None and covers is not None:
             pr = pix[rem]
             sels = []
-            for j, b in enumerate(boxes):
-                cand = np.nonzero((pr[:, 0] >= b[0]) & (pr[:, 0] <= b[2]) & (pr[:, 1] >= b[1]) & (pr[:, 1] <= b[3]))[0]
+            for j, cov in enumerate(covers):
+                cand = cov.lookup(pr)
                 if len(cand):
                     # exact sphere test on the candidates only
                     oc = self.centers[j] - o[rem[cand]]
@@ -382,15 +482,15 @@ def _normalize(a: np.ndarray) -> np.ndarray:
 
 def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray, light_axes: np.ndarray,
            cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
-           sboxes: np.ndarray | None = None) -> np.ndarray:
+           scovers: list[_Cover] | None = None) -> np.ndarray:
     """Linear RGB radiance (1 = white surface facing the flash at REF_DISTANCE) per ray (float32 (N, 3))."""
-    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, sboxes)
+    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
     return direct * vis[:, None] + amb
 
 
 def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray,
                  light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
-                 sboxes: np.ndarray | None = None):
+                 scovers: list[_Cover] | None = None):
     """``(direct (N, 3), flash visibility (N,), ambient (N, 3))``: radiance = direct * vis + ambient."""
     ic = cfg.imaging
     world = fs.world
@@ -497,7 +597,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     if ic.shadows:
         lit = np.nonzero((ndl > 0) & (irr > 1e-4))[0]
         start = p[lit] + nrm[lit] * 2e-4 + ldir[lit] * 5e-4
-        occ = fs.occluded(start, lp[lit] - start, None if pix is None else pix[live[lit]], sboxes)
+        occ = fs.occluded(start, lp[lit] - start, None if pix is None else pix[live[lit]], scovers)
         vis[lit[occ]] = 0.0
     hv = _normalize(ldir - dl)
     spec = ks * np.maximum(_dot(nrm, hv), 0) ** shin
@@ -528,32 +628,6 @@ def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.
             den += same
         vis = num / den
     return vis
-
-
-def _shadow_boxes(fs: _FrameScene, boxes: np.ndarray, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray,
-                  cfg: SimConfig) -> np.ndarray:
-    """Pixel rectangles outside which a panicle cannot shadow what a pixel sees.
-
-    The segment from a surface point to a flash point ``L`` (camera frame, ``L_z ~ 0``) projects to
-    the half-line from the pixel in direction ``(fx L_x, fy L_y)``; where it can meet a panicle's
-    sphere (depth >= z_near) it has moved at most ``f |L| / z_near`` pixels. So the pixel must lie in
-    the panicle's box grown by that much against the flash direction (plus the flash radius)."""
-    R, o = T_wc[:3, :3], T_wc[:3, 3]
-    L = R.T @ (light - o)
-    rho = cfg.imaging.flash_radius
-    pc = (fs.centers - o) @ R
-    out = np.array(boxes, float, copy=True)
-    for j, b in enumerate(boxes):
-        z_near = pc[j, 2] - fs.radii[j]
-        if z_near <= 0.05 or abs(L[2]) > 0.5 * z_near:
-            out[j] = (-1e9, -1e9, 1e9, 1e9)
-            continue
-        sx, sy = calib.fx / (z_near - abs(L[2])), calib.fy / (z_near - abs(L[2]))
-        out[j, 0] -= sx * (max(L[0], 0) + rho) + 1
-        out[j, 2] += sx * (max(-L[0], 0) + rho) + 1
-        out[j, 1] -= sy * (max(L[1], 0) + rho) + 1
-        out[j, 3] += sy * (max(-L[1], 0) + rho) + 1
-    return out
 
 
 def _camera_dirs(world: World, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
@@ -588,10 +662,9 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     o = T_wc[:3, 3].astype(np.float32)[None, :]
     dc, pix = _camera_dirs(fs.world, calib)
     d = dc @ R.T
-    boxes = fs.pixel_boxes(T_wc, calib)
-    h = fs.trace(o, d, pix, boxes, grid=(H, W))
-    sboxes = _shadow_boxes(fs, boxes, T_wc, calib, light, cfg)
-    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, sboxes)
+    covers, scovers = fs.covers(T_wc, calib, light, cfg)
+    h = fs.trace(o, d, pix, covers, grid=True)
+    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
     key = _object_key(h)
     if cfg.imaging.shadows and cfg.imaging.flash_radius > 0:
         vis = _filter_visibility(vis.reshape(H, W), key.reshape(H, W)).reshape(-1)
@@ -620,14 +693,14 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
             S = len(grid_off)
             ps = (pix[idx][None, :, :] + grid_off[:, None, :]).reshape(-1, 2)
             ds = _unit_dirs(calib, ps) @ R.T
-            hs = fs.trace(o, ds, ps, boxes)
+            hs = fs.trace(o, ds, ps, covers)
             ks = _object_key(hs)
             same = ks == np.tile(key[idx], S)
             sub_rgb = np.tile(rgb[idx], (S, 1))
             diff = np.nonzero(~same)[0]
             if len(diff):
                 sub = _Hits(hs.t[diff], hs.cls[diff], hs.obj[diff], hs.prim[diff], hs.bary[diff], hs.seed[diff])
-                sub_rgb[diff] = _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng, ps[diff], sboxes)
+                sub_rgb[diff] = _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng, ps[diff], scovers)
             rgb[idx] = sub_rgb.reshape(S, len(idx), 3).mean(axis=0)
     return rgb.reshape(H, W, 3), seed_img, depth, h
 
