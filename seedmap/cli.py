@@ -220,6 +220,25 @@ def train_segmenter_cmd(
     _train_common("segmenter", data, out, val, images_root, config, set_, resume, overwrite)
 
 
+@train_app.command("export")
+def train_export_cmd(
+    weights: Path = typer.Argument(..., help="Weights folder (detector/segmenter.safetensors) or one such file."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for the .onnx files (default: beside the weights)."),
+    score_threshold: float = typer.Option(0.05, "--score-threshold", help="Detector boxes below this are dropped in the graph."),
+    nms_iou: float = typer.Option(0.3, "--nms-iou", help="NMS IoU baked into the detector graph (learned.nms_iou)."),
+    max_detections: int = typer.Option(3000, "--max-detections", help="Box cap baked into the graph (learned.max_detections)."),
+) -> None:
+    """Export trained weights to ONNX (detector.onnx, segmenter.onnx) for onnxruntime; frcnn-pix2pix then uses them."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.detect.learned.export import export_weights
+
+    for p in export_weights(weights, out, score_threshold=score_threshold, nms_iou=nms_iou,
+                            max_detections=max_detections):
+        typer.echo(f"exported {p}")
+
+
 # ================================================================================================
 # slam / demo / eval associate / eval slam (seedmap.associate, seedmap.slam)
 # ================================================================================================

@@ -162,3 +162,65 @@ def test_without_torch_clear_error():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert "pip install 'seedmap[learned]'" in r.stdout
+
+
+def test_detector_onnx_export_matches_torch(tmp_path):
+    """The exported Faster R-CNN graph gives torch's boxes and scores, for any image size."""
+    import onnxruntime as ort
+
+    from seedmap.detect.learned.export import export_frcnn_onnx, onnx_post_params
+
+    torch.manual_seed(0)
+    m = build_frcnn(TINY_DET).eval()
+    p = export_frcnn_onnx(m, TINY_DET, tmp_path / "detector.onnx", score_threshold=0.0, max_detections=1000)
+    assert onnx_post_params(p)["nms_iou"] == 0.3
+    sess = ort.InferenceSession(str(p), providers=["CPUExecutionProvider"])
+    m.roi_heads.score_thresh = 0.0
+    m.roi_heads.detections_per_img = 1000
+    for h, w in ((96, 128), (72, 100)):  # the second size was never traced
+        x = torch.rand(3, h, w, generator=torch.Generator().manual_seed(h))
+        set_input_scale(m, h, w, TINY_DET.upscale)
+        with torch.no_grad():
+            ref = m([x])[0]
+        b, s = sess.run(None, {"image": x.numpy()})
+        tb, ts = ref["boxes"].numpy(), ref["scores"].numpy()
+        assert len(b) == len(tb) > 0
+        np.testing.assert_allclose(np.sort(s), np.sort(ts), atol=1e-5)
+        # boxes as sets: an untrained net's near-equal scores (ties at 1e-7) may swap a few boxes
+        # in the RPN's top-k / NMS; a wrong input scale or layout would match none
+        d = np.abs(b[:, None, :] - tb[None, :, :]).max(-1).min(1)
+        assert (d < 1e-2).mean() > 0.85
+        assert d[np.argmax(s)] < 1e-2
+        assert (b[:, 2] <= w + 1e-3).all() and (b[:, 3] <= h + 1e-3).all()  # boxes in input pixels
+
+
+def test_export_cli_and_onnx_detector(data, trained, tmp_path):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from seedmap.cli import app
+
+    for f in ("detector.safetensors", "segmenter.safetensors"):
+        shutil.copy(trained / f, tmp_path / f)
+    r = CliRunner().invoke(app, ["train", "export", str(tmp_path), "--score-threshold", "0.0"])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "detector.onnx").is_file() and (tmp_path / "segmenter.onnx").is_file()
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    img = SeedmapDataset(data)[0].left
+    det = make_detector("frcnn-pix2pix", weights=tmp_path, overrides=["learned.score_threshold=0.0"])
+    assert det.ort_det is not None and det.ort is not None
+    b_onnx, s_onnx = det.boxes(img)
+    det.ort_det = None
+    b_t, s_t = det.boxes(img)
+    assert len(b_onnx) == len(b_t) > 0
+    # near-tied scores of a barely trained net: a few boxes may swap in NMS, the rest agree exactly
+    assert (np.abs(np.sort(s_onnx) - np.sort(s_t)) < 1e-5).mean() > 0.95
+    d = np.abs(b_onnx[:, None, :] - b_t[None, :, :]).max(-1).min(1)
+    assert (d < 1e-2).mean() > 0.85
+    # a config that keeps boxes the graph already dropped falls back to torch
+    det2 = make_detector("frcnn-pix2pix", weights=tmp_path, overrides=["learned.nms_iou=0.5"])
+    assert det2.ort_det is None
+    r = CliRunner().invoke(app, ["train", "export", str(tmp_path / "nothing")])
+    assert isinstance(r.exception, InputError) and "weights not found" in str(r.exception)

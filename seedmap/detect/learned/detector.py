@@ -3,7 +3,8 @@
 Weights: ``detector.safetensors`` and ``segmenter.safetensors`` (as written by ``seedmap train``).
 ``--weights`` may name either file or their folder; the other file is looked up beside it. When a
 ``segmenter.onnx`` sits next to the segmenter weights (and ``learned.use_onnx``), the segmenter runs
-in onnxruntime. A mask that comes out empty falls back to the box's inscribed ellipse (its centre is
+in onnxruntime; likewise the detector when a ``detector.onnx`` (``seedmap train export``) sits next to
+the detector weights and its baked-in post-processing (score threshold, NMS IoU, box cap) fits the config. A mask that comes out empty falls back to the box's inscribed ellipse (its centre is
 the box centre), so the detection is kept.
 """
 
@@ -57,7 +58,8 @@ class LearnedDetector(Detector):
     name = "frcnn-pix2pix"
 
     def __init__(self, det_model: torch.nn.Module, det_arch: DetectorArch, gen: torch.nn.Module,
-                 seg_arch: SegmenterArch, config: LearnedConfig | None = None, onnx_path: Path | None = None) -> None:
+                 seg_arch: SegmenterArch, config: LearnedConfig | None = None, onnx_path: Path | None = None,
+                 det_onnx_path: Path | None = None) -> None:
         self.cfg = config or LearnedConfig()
         self.det = det_model.eval()
         self.det_arch = det_arch
@@ -73,6 +75,20 @@ class LearnedDetector(Detector):
             so = ort.SessionOptions()
             so.intra_op_num_threads = max(1, torch.get_num_threads())
             self.ort = ort.InferenceSession(str(onnx_path), so, providers=["CPUExecutionProvider"])
+        self.ort_det = None
+        if det_onnx_path is not None and self.cfg.use_onnx and det_onnx_path.is_file():
+            from seedmap.detect.learned.export import onnx_post_params
+
+            post = onnx_post_params(det_onnx_path)
+            # the graph's own thresholds must not remove what the config asks to keep
+            if (post.get("score_threshold", 1.0) <= self.cfg.score_threshold
+                    and abs(post.get("nms_iou", -1.0) - self.cfg.nms_iou) < 1e-9
+                    and post.get("max_detections", 0) >= self.cfg.max_detections):
+                import onnxruntime as ort
+
+                so = ort.SessionOptions()
+                so.intra_op_num_threads = max(1, torch.get_num_threads())
+                self.ort_det = ort.InferenceSession(str(det_onnx_path), so, providers=["CPUExecutionProvider"])
 
     @classmethod
     def from_weights(cls, weights: str | Path | None, config: LearnedConfig | None = None) -> LearnedDetector:
@@ -88,7 +104,7 @@ class LearnedDetector(Detector):
         load_into(model, td, det_p)
         gen = UNetGenerator(sarch.crop_size, sarch.ngf)
         load_into(gen, ts, seg_p)
-        return cls(model, darch, gen, sarch, config, seg_p.with_suffix(".onnx"))
+        return cls(model, darch, gen, sarch, config, seg_p.with_suffix(".onnx"), det_p.with_suffix(".onnx"))
 
     def boxes(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Faster R-CNN boxes (x0, y0, x1, y1) and scores on the upscaled image."""
@@ -96,6 +112,11 @@ class LearnedDetector(Detector):
         h, w = img.shape[:2]
         set_input_scale(self.det, h, w, self.cfg.upscale)
         x = torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float().div_(255.0)
+        if self.ort_det is not None:
+            b, s = self.ort_det.run(None, {"image": x.numpy()})
+            keep = np.flatnonzero(s >= self.cfg.score_threshold)
+            keep = keep[np.argsort(-s[keep], kind="stable")][: self.cfg.max_detections]
+            return b[keep].astype(np.float64), s[keep]
         with torch.no_grad():
             out = self.det([x])[0]
         return out["boxes"].numpy().astype(np.float64), out["scores"].numpy()

@@ -367,17 +367,9 @@ def segmenter_val_metrics(gen: nn.Module, arch: SegmenterArch, batch: tuple) -> 
 
 def export_segmenter_onnx(gen: nn.Module, arch: SegmenterArch, path: Path) -> Path:
     """ONNX export (dynamic batch) of the generator, for onnxruntime CPU inference."""
-    import io
+    from seedmap.detect.learned.export import export_segmenter_onnx as _export
 
-    from seedmap.io.atomic import atomic_write_bytes
-
-    gen.eval()
-    buf = io.BytesIO()
-    x = torch.zeros(2, 3, arch.crop_size, arch.crop_size)
-    torch.onnx.export(gen, (x,), buf, input_names=["crop"], output_names=["mask"], dynamo=False,
-                      dynamic_axes={"crop": {0: "n"}, "mask": {0: "n"}}, opset_version=17)
-    atomic_write_bytes(path, buf.getvalue())
-    return path
+    return _export(gen, arch, path)
 
 
 def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, val_source=None,
