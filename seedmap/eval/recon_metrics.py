@@ -100,7 +100,8 @@ def summarize_scan_rows(rows: list[dict], modes: list[str], tune_panicles: tuple
         vals = {k: np.array([r["modes"][m][k] for r in held if m in r["modes"]], float) for k in keys}
         out["modes"][m] = {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in vals.items() if len(v)}
     pairs = [(r["modes"][m]["quality"]["seed_spread_mm"], r["modes"][m]["quality"]["surface_thickness_mm"],
-              r["modes"][m]["pose_trans_mm_mean"], r["modes"][m]["cloud_dist_mm_median"])
+              r["modes"][m]["pose_trans_mm_mean"], r["modes"][m]["cloud_dist_mm_median"],
+              r["modes"][m]["quality"].get("cross_view_seed_mm", np.nan))
              for r in held for m in modes if m in r["modes"]]
     a = np.array(pairs, float)
     if len(a) >= 4:
@@ -109,6 +110,8 @@ def summarize_scan_rows(rows: list[dict], modes: list[str], tune_panicles: tuple
             "seed_spread_vs_cloud_error": float(spearmanr(a[:, 0], a[:, 3]).statistic),
             "surface_thickness_vs_pose_error": float(spearmanr(a[:, 1], a[:, 2]).statistic),
             "surface_thickness_vs_cloud_error": float(spearmanr(a[:, 1], a[:, 3]).statistic),
+            "cross_view_seed_vs_pose_error": float(spearmanr(a[:, 4], a[:, 2]).statistic),
+            "cross_view_seed_vs_cloud_error": float(spearmanr(a[:, 4], a[:, 3]).statistic),
             "n_pairs": int(len(a)),
         }
     return out

@@ -79,14 +79,19 @@ class RegisterConfig(ConfigModel):
 class CountConfig(ConfigModel):
     """De-duplication of seed detections in 3D (see seedmap.recon.count for the methods)."""
 
-    method: Literal["tracks", "density"] = Field("density", description="chosen on the tuning panicle (seed 100)")
+    method: Literal["rays", "tracks", "density"] = Field("rays", description="chosen on the tuning panicle (seed 100)")
     link_radius: float = Field(0.0025, gt=0, description="tracks: max 3D distance of a cross-view link (m)")
-    max_lag: int = Field(3, ge=1, description="tracks: link views up to this many steps apart (around the circle)")
+    max_lag: int = Field(3, ge=1, description="tracks, rays: link views up to this many steps apart (around the circle)")
     dbscan_eps: float = Field(0.004, gt=0, description="DBSCAN neighbourhood (m): separates seed groups/outliers")
     dbscan_min_points: int = Field(2, ge=1)
     bandwidth: float = Field(0.0008, gt=0, description="Gaussian density smoothing sigma (m)")
     separation: float = Field(0.6, gt=0, description="min distance between two seed centres, in median diameters")
     min_observations: int = Field(2, ge=1, description="views that must support a seed")
+    sigma_lateral: float = Field(0.0003, gt=0, description="rays: position error across the viewing ray (m)")
+    sigma_depth: float = Field(0.0015, gt=0, description="rays: position error along the viewing ray (m)")
+    gate_chi2: float = Field(9.0, gt=0, description="rays: max squared Mahalanobis distance of a link")
+    circular: bool = Field(True, description="views are ordered around a closed circle (lag wraps around)")
+    max_pair_distance: float = Field(0.012, gt=0, description="rays: never link observations farther apart (m)")
 
 
 class ReconConfig(ConfigModel):

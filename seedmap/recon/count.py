@@ -3,6 +3,16 @@
 Every view contributes one 3D centre per detected seed (in the registered world frame), so a seed
 seen from ``n`` views appears as a tight cloud of ``n`` observations.
 
+Method ``rays`` (default): a per-view seed centre is precise ACROSS its viewing ray (keypoint,
+~0.2 mm at 0.3 m) but not ALONG it (stereo depth of a 3 mm seed: ~1 mm core, a long tail), so two
+observations are compared by the Mahalanobis distance under covariances elongated along their rays
+(``sigma_lateral`` across, ``sigma_depth`` along, needs each observation's camera centre). Pairs
+of views up to ``max_lag`` steps apart within ``gate_chi2`` are merged (union-find) nearest views
+first -- their rays are nearly parallel, so depth errors hardly matter -- and by increasing distance
+within a lag, under the cannot-link rule below. A group seen from ``min_observations`` distinct
+views is one seed; its position is the information-weighted mean (rays from different directions
+fix the depth).
+
 Method ``tracks``: observations of views up to ``max_lag`` steps apart around the circle
 are linked when they are mutual nearest neighbours within ``link_radius``; links are merged
 shortest first (union-find) under a cannot-link rule -- one view sees a seed at most once, so two
@@ -61,9 +71,16 @@ def dbscan(xyz: np.ndarray, eps: float, min_points: int) -> np.ndarray:
     return np.asarray(p.cluster_dbscan(eps=eps, min_points=min_points, print_progress=False), np.int64)
 
 
-def count_seeds(xyz: np.ndarray, view: np.ndarray, diameter: np.ndarray, cfg: CountConfig) -> SeedCount:
+def count_seeds(xyz: np.ndarray, view: np.ndarray, diameter: np.ndarray, cfg: CountConfig,
+                origin: np.ndarray | None = None) -> SeedCount:
     """De-duplicate seed observations (world centres ``xyz`` (N, 3) m, their ``view`` ids and
-    observed ``diameter`` (m)) into one entry per physical seed (methods in the module docstring)."""
+    observed ``diameter`` (m)) into one entry per physical seed (methods in the module docstring).
+    ``origin`` (N, 3) m: the camera centre each observation was seen from (method ``rays`` needs it:
+    the depth along that ray is far less certain than the position across it)."""
+    if cfg.method == "rays":
+        if origin is None:
+            raise ValueError("count method 'rays' needs the camera centre of every observation (origin)")
+        return count_rays(xyz, view, diameter, origin, cfg)
     if cfg.method == "tracks":
         return count_tracks(xyz, view, diameter, cfg)
     xyz = np.asarray(xyz, float).reshape(-1, 3)
@@ -173,6 +190,79 @@ def count_tracks(xyz: np.ndarray, view: np.ndarray, diameter: np.ndarray, cfg: C
     pos = np.zeros((len(uniq), 3))
     np.add.at(pos, comp, xyz)
     pos /= cnt[:, None]
+    d2 = np.sum((xyz - pos[comp]) ** 2, axis=1)
+    spread = np.sqrt(np.bincount(comp, weights=d2, minlength=len(uniq)) / cnt)
+    diam = np.array([np.median(diameter[comp == c]) for c in np.flatnonzero(keep)]) if keep.any() else np.zeros(0)
+    return SeedCount(pos[keep], diam, nviews[keep], new_index[comp], spread[keep])
+
+
+def _ray_covariances(xyz: np.ndarray, origin: np.ndarray, sigma_lat: float, sigma_depth: float) -> np.ndarray:
+    """(N, 3, 3) covariance of each observation: ``sigma_lat`` across its viewing ray, ``sigma_depth`` along it."""
+    r = xyz - origin
+    r /= np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-12)
+    return sigma_lat ** 2 * np.eye(3)[None] + (sigma_depth ** 2 - sigma_lat ** 2) * r[:, :, None] * r[:, None, :]
+
+
+def count_rays(xyz: np.ndarray, view: np.ndarray, diameter: np.ndarray, origin: np.ndarray,
+               cfg: CountConfig) -> SeedCount:
+    """The ``rays`` method (module docstring): cannot-link agglomeration of observations under a
+    ray-aligned (anisotropic) Mahalanobis distance."""
+    xyz = np.asarray(xyz, float).reshape(-1, 3)
+    view = np.asarray(view, np.int64).reshape(-1)
+    diameter = np.asarray(diameter, float).reshape(-1)
+    origin = np.asarray(origin, float).reshape(-1, 3)
+    n = len(xyz)
+    if n == 0:
+        return SeedCount(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    if len(origin) != n:
+        raise ValueError(f"origin has {len(origin)} rows for {n} observations")
+    cov = _ray_covariances(xyz, origin, cfg.sigma_lateral, cfg.sigma_depth)
+    # candidate pairs: Euclidean pre-filter wide enough for the depth uncertainty of both ends
+    radius = min(np.sqrt(cfg.gate_chi2 * 2.0) * cfg.sigma_depth, cfg.max_pair_distance)
+    pairs = cKDTree(xyz).query_pairs(radius, output_type="ndarray")
+    pairs = pairs[view[pairs[:, 0]] != view[pairs[:, 1]]] if len(pairs) else np.zeros((0, 2), np.int64)
+    if len(pairs):
+        d = xyz[pairs[:, 0]] - xyz[pairs[:, 1]]
+        S = cov[pairs[:, 0]] + cov[pairs[:, 1]]
+        m2 = np.einsum("pi,pi->p", d, np.linalg.solve(S, d[:, :, None])[:, :, 0])
+        V = int(view.max()) + 1
+        lag = np.abs(view[pairs[:, 0]] - view[pairs[:, 1]])
+        lag = np.minimum(lag, V - lag) if cfg.circular else lag
+        ok = (m2 <= cfg.gate_chi2) & (lag <= cfg.max_lag)
+        pairs, m2, lag = pairs[ok], m2[ok], lag[ok]
+        # neighbouring views first (their rays are nearly parallel, so depth errors barely matter),
+        # each lag by increasing distance
+        order = np.lexsort((m2, lag))
+        pairs = pairs[order]
+    parent = np.arange(n)
+    vmask = [1 << int(v) for v in view]  # views present in each group (python ints: any number of views)
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for x, y in pairs.tolist():
+        rx, ry = find(x), find(y)
+        if rx == ry or (vmask[rx] & vmask[ry]):
+            continue  # cannot-link: one view sees a seed at most once
+        parent[ry] = rx
+        vmask[rx] |= vmask[ry]
+    roots = np.array([find(i) for i in range(n)])
+    uniq, comp = np.unique(roots, return_inverse=True)
+    nviews = np.array([bin(vmask[r]).count("1") for r in uniq])
+    keep = nviews >= cfg.min_observations
+    new_index = np.full(len(uniq), -1, np.int64)
+    new_index[keep] = np.arange(keep.sum())
+    # information-weighted position: the precise directions across the rays dominate
+    W = np.linalg.inv(cov)
+    Wsum = np.zeros((len(uniq), 3, 3))
+    np.add.at(Wsum, comp, W)
+    b = np.zeros((len(uniq), 3))
+    np.add.at(b, comp, np.einsum("nij,nj->ni", W, xyz))
+    pos = np.linalg.solve(Wsum, b[:, :, None])[:, :, 0]
+    cnt = np.bincount(comp, minlength=len(uniq))
     d2 = np.sum((xyz - pos[comp]) ** 2, axis=1)
     spread = np.sqrt(np.bincount(comp, weights=d2, minlength=len(uniq)) / cnt)
     diam = np.array([np.median(diameter[comp == c]) for c in np.flatnonzero(keep)]) if keep.any() else np.zeros(0)

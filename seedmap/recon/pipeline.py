@@ -198,7 +198,7 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
     obs_xyz, obs_view = cat(ox, (0, 3)), cat(ov, (0,)).astype(np.int64)
     obs_diam, obs_id, obs_det = cat(od, (0,)), cat(oid, (0,)).astype(np.int64), cat(odet, (0,)).astype(np.int64)
     t0 = time.perf_counter()
-    cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count)
+    cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count, origin=reg.poses[obs_view][:, :3, 3])
     t_count = time.perf_counter() - t0
     # merged cloud; per-point label = counted seed of the detection the pixel belonged to
     px, pc, pl = [], [], []
@@ -349,6 +349,23 @@ def gt_visible_seeds(root: Path, min_area_px: int, min_views: int = 1) -> np.nda
     return u[c >= min_views]
 
 
+def gt_countable_seeds(root: Path, min_area_px: int, min_views: int = 2) -> np.ndarray:
+    """GT ids of the seeds a 3D counter can count: at least ``min_area_px`` visible pixels in BOTH
+    the left and the right image (stereo depth needs both) of at least ``min_views`` views (one view
+    cannot tell a duplicate from a new seed; the counter needs ``count.min_observations`` = 2)."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = SeedmapDataset(root)
+    ids = []
+    for i in range(len(ds)):
+        left, right = ds.gt_instances(i, "left"), ds.gt_instances(i, "right")
+        ids.append(np.intersect1d(left.seed_id[left.area >= min_area_px], right.seed_id[right.area >= min_area_px]))
+    if not ids:
+        return np.zeros(0, np.int64)
+    u, c = np.unique(np.concatenate(ids), return_counts=True)
+    return u[c >= min_views]
+
+
 def gt_metrics(rec: Reconstruction, root: Path, min_area_px: int) -> dict | None:
     """Pose, cloud and count errors against the simulator's ground truth (None without GT)."""
     from seedmap.eval.recon_metrics import evaluate_reconstruction
@@ -361,6 +378,10 @@ def gt_metrics(rec: Reconstruction, root: Path, min_area_px: int) -> dict | None
     vis = gt_visible_seeds(root, min_area_px)
     out = evaluate_reconstruction(rec.poses, rec.cloud_xyz, rec.count.count, ref, surf, len(vis), fk_poses=rec.T_fk)
     out["gt_visible_seeds_definition"] = f"centre visible and >= {min_area_px} px in >= 1 left view"
+    countable = len(gt_countable_seeds(root, min_area_px))
+    out["count_gt_countable"] = countable
+    out["count_countable_ape_pct"] = float(abs(rec.count.count - countable) / max(countable, 1) * 100.0)
+    out["gt_countable_seeds_definition"] = f">= {min_area_px} px in the left AND right image of >= 2 views"
     return out
 
 
@@ -416,6 +437,18 @@ def read_observations(results: str | Path) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
-    """``seedmap count``: de-duplicate the stored per-view seed observations again with ``cfg.count``."""
+    """``seedmap count``: de-duplicate the stored per-view seed observations again with ``cfg.count``
+    (camera centres for the ``rays`` method from the folder's ``poses_tum.txt``)."""
     xyz, view, diam = read_observations(results)
-    return count_seeds(xyz, view, diam, cfg.count)
+    origin = None
+    if cfg.count.method == "rays":
+        from seedmap.io.trajectory import read_tum
+
+        p = Path(results) / "poses_tum.txt"
+        if not p.is_file():
+            raise InputError("poses_tum.txt not found (count method 'rays' needs the camera poses)", p)
+        poses = read_tum(p).poses
+        if len(view) and view.max() >= len(poses):
+            raise InputError(f"observations.csv refers to view {view.max()}, poses_tum.txt has {len(poses)}", p)
+        origin = poses[view][:, :3, 3]
+    return count_seeds(xyz, view, diam, cfg.count, origin=origin)
