@@ -552,7 +552,8 @@ def reconstruct_cmd(
         g = m["gt"]
         typer.echo(f"vs GT: pose {g['pose_trans_mm_mean']:.2f} mm / {g['pose_rot_deg_mean']:.3f} deg, cloud "
                    f"median {g['cloud_dist_mm_median']:.2f} mm p90 {g['cloud_dist_mm_p90']:.2f} mm, "
-                   f"count {g['count']} vs {g['count_gt']} ({g['count_ape_pct']:.1f} %)")
+                   f"count {g['count']} vs {g['count_gt']} visible ({g['count_ape_pct']:.1f} %), "
+                   f"{g['count_gt_countable']} countable ({g['count_countable_ape_pct']:.1f} %)")
     typer.echo(f"wrote {path} (report.html)" + (f", rerun recording {rerun}" if rerun else ""))
 
 
