@@ -45,22 +45,55 @@ units the |Δy| term is too, so the paper's 200 is kept unchanged at every resol
 of all four neighbour sums a pair costs ~4 r = 40 plus its |Δy|).
 
 Known weakness and our options. The ratio of *raw sums* changes when a neighbour is visible in
-only one image (image border, occlusion, detector miss), and in dense panicles (2,000-5,000
+only one image (image border, occlusion, detector miss), and in dense panicles (2,000-8,000
 keypoints per image, ~3 px apart on the simulated ranges) many neighbouring seeds have nearly
-the same sums, so one assignment on this cost alone is ambiguous (measured: stereo precision
-~0.3, temporal ~0.5 with the ``gt`` oracle, see the report). Options (the paper's method stays the
-default of :class:`SemanticConfig`):
+the same sums, so one assignment on this cost alone is ambiguous (measured with the ``gt``
+oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stays the default of
+:class:`SemanticConfig`):
 
-* ``refine="consensus"`` (:func:`consensus_assign`): panicles are rigid and smooth, so a seed's
-  disparity / frame-to-frame shift is close to its neighbours'. The paper's cost gives mutual
-  best pairs, their local median displacement predicts every keypoint's partner, and a second
-  gated assignment on ``paper cost + w * residual`` keeps candidates near the prediction.
+* ``refine="consensus"`` (:func:`consensus_assign`, session 1): mutual best pairs of the paper's
+  cost give a local median displacement that gates a second assignment.
+* ``refine="field"`` (:func:`field_assign`, the SLAM default): the paper's cost is assigned inside
+  a *displacement-field prior*. Panicles are rigid and smooth, so the disparity (stereo) or the
+  frame-to-frame shift (temporal) of a seed is close to its image neighbours'. Steps:
+
+  1. coarse field (:func:`coarse_field`): every candidate pair inside the search box (stereo:
+     disparity between the minimum-disparity gate and ``field_max_disparity_px``, rows within
+     ``field_stereo_band_px``; temporal: ``prediction_tol_px`` around the constant-velocity
+     prediction, or the whole travel gate on the first pair) votes in a displacement histogram
+     of its image cell (``field_cell_px``); the peak of the histogram smoothed over 3 x 3 cells is
+     the cell's displacement (true pairs agree, wrong ones spread out);
+  2. ``field_iters`` refinements: candidates within ``field_gate_sigma`` normalised residuals of
+     the field (window shrinking geometrically from ``field_coarse_tol_px`` to the expected
+     spread ``field_*_sigma_px``), their *mutual best* pairs by residual that pass a ratio test
+     (``field_seed_ratio``) are the unambiguous "seed" matches, and every keypoint's field becomes
+     the median displacement of its ``field_k`` nearest seed matches (its own match excluded);
+     for rectified stereo the v displacement is fixed to 0 (epipolar rows);
+  3. final assignment of ``paper cost + field_weight * residual^2`` (residual in units of the
+     expected spread) with :func:`assign_capped`: unlike the paper's gated Hungarian, which
+     first maximises the number of pairs and so forces keypoints without a visible partner onto
+     a neighbour's partner, a keypoint may stay unmatched (pair kept only when its cost is below
+     ``max_cost + field_weight * field_gate_sigma^2``);
+  4. ambiguity test: a kept pair's residual must be below ``field_ratio`` x the residual of every
+     competitor candidate sharing one of its keypoints.
+
+  All steps are vectorised (KD-tree box queries, bincount histograms, one sparse min-weight
+  matching); no Python loop over keypoints, pairs or components.
+  Measured limits (``seedmap eval associate``, gt oracle, 1434 px): even with the *true* local
+  field, a seed's own disparity deviates from its neighbours' by 2.4 px (90th percentile; seeds
+  of a loose panicle lie at different depths) and its ellipse centre moves by partial occlusion,
+  while neighbours are ~3 px apart, so geometry alone bounds stereo precision at ~0.8-0.9 and
+  temporal at ~0.95-0.98 on these ranges; the paper's neighbour-sum term adds next to nothing
+  among the candidates that survive the field gate (``field_weight`` makes the residual the
+  dominant term). RANSAC on the 3D matches removes the remaining wrong pairs.
 * ``temporal_prediction=True`` gates temporal pairs around a constant-velocity prediction of the
-  image shift (the median shift of the previous frame pair).
+  image shift (the median shift of the previous frame pair; u for ``consensus``, u and v for
+  ``field``).
 * ``neighbours="overlap"`` counts, for temporal matching, only neighbours inside the field of view
   common to both frames given the predicted shift.
 
-The SLAM pipeline (``seedmap.slam.config.SlamAssociationConfig``) enables the first two by default.
+The SLAM pipeline (``seedmap.slam.config.SlamAssociationConfig``) uses ``refine="field"`` and the
+constant-velocity prediction by default.
 """
 
 from __future__ import annotations
@@ -94,13 +127,30 @@ class SemanticConfig(ConfigModel):
     neighbours: Literal["all", "overlap"] = "all"
     temporal_prediction: bool = False
     prediction_tol_px: float = 150.0
-    #: "none" = the paper (one gated assignment on its cost); "consensus" = our option, see module doc
-    refine: Literal["none", "consensus"] = "none"
+    #: "none" = the paper (one gated assignment on its cost); "consensus" / "field" = our options,
+    #: see the module docstring
+    refine: Literal["none", "consensus", "field"] = "none"
     consensus_k: int = 15
     consensus_tol_px: float = 4.3
     consensus_weight: float = 10.0
     consensus_iters: int = 2
     chunk: int = 512
+    # refine="field" (full-resolution px unless stated)
+    field_cell_px: float = 256.0
+    field_bin_px: float = 3.0
+    field_coarse_points: int = 1500
+    field_coarse_tol_px: float = 24.0
+    field_max_disparity_px: float = 1500.0
+    field_max_shift_px: float = 1500.0
+    field_stereo_band_px: float = 12.0
+    field_stereo_sigma_px: tuple[float, float] = (4.5, 1.5)
+    field_temporal_sigma_px: tuple[float, float] = (2.0, 1.0)
+    field_gate_sigma: float = 3.5
+    field_weight: float = 20.0
+    field_k: int = 15
+    field_iters: int = 4
+    field_ratio: float = 0.7
+    field_seed_ratio: float = 0.5
 
 
 def full_res_scale(width: int) -> float:
@@ -114,20 +164,19 @@ def full_res_scale(width: int) -> float:
 
 
 def _band_pairs(a: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
-    """All index pairs (i, j), i != j, with ``|a_j - a_i| < eps`` (sort + searchsorted, no N x N)."""
+    """Every unordered index pair ``{i, j}``, i != j, with ``|a_j - a_i| < eps``, listed once
+    (sort + searchsorted, no N x N)."""
     order = np.argsort(a, kind="stable")
     sa = a[order]
-    lo = np.searchsorted(sa, sa - eps, side="right")
+    n = len(sa)
     hi = np.searchsorted(sa, sa + eps, side="left")
-    cnt = hi - lo
+    cnt = np.maximum(hi - np.arange(n) - 1, 0)
     total = int(cnt.sum())
     if total == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    ii = np.repeat(np.arange(len(sa)), cnt)
-    offs = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    jj = lo[ii] + offs
-    keep = ii != jj
-    return order[ii[keep]], order[jj[keep]]
+    ii = np.repeat(np.arange(n), cnt)
+    jj = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt) + ii + 1
+    return order[ii], order[jj]
 
 
 def neighbour_sums(
@@ -137,8 +186,9 @@ def neighbour_sums(
 
     ``kp`` (N, 2) in any pixel unit consistent with ``delta`` and ``eps``. ``valid`` (N,) bool marks
     which points may serve as neighbours (default: all). Candidate pairs come from sorting along
-    the band axis (only points within ``eps`` are ever paired), so the work is ~N x band density,
-    not N x N. ``chunk`` is kept for API stability (unused).
+    the band axis (only points within ``eps`` are ever paired) and every unordered pair is
+    visited once (``q`` left of ``p`` <=> ``p`` right of ``q``, same distance), so the work is
+    ~N x band density / 2, not N x N. ``chunk`` is kept for API stability (unused).
     """
     kp = np.asarray(kp, np.float64).reshape(-1, 2)
     n = len(kp)
@@ -146,26 +196,28 @@ def neighbour_sums(
     if n == 0:
         return out
     ok = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(-1)
-    # horizontal band (|dy| < eps): left / right sets
-    i, j = _band_pairs(kp[:, 1], eps)
-    keep = ok[j]
-    i, j = i[keep], j[keep]
-    dx = kp[j, 0] - kp[i, 0]
-    dist = np.hypot(dx, kp[j, 1] - kp[i, 1])
-    m = (dx < 0) & (-dx < delta)
-    out[:, 0] = np.bincount(i[m], dist[m], minlength=n)
-    m = (dx > 0) & (dx < delta)
-    out[:, 1] = np.bincount(i[m], dist[m], minlength=n)
-    # vertical band (|dx| < eps): top / bottom sets
-    i, j = _band_pairs(kp[:, 0], eps)
-    keep = ok[j]
-    i, j = i[keep], j[keep]
-    dy = kp[j, 1] - kp[i, 1]
-    dist = np.hypot(kp[j, 0] - kp[i, 0], dy)
-    m = (dy < 0) & (-dy < delta)
-    out[:, 2] = np.bincount(i[m], dist[m], minlength=n)
-    m = (dy > 0) & (dy < delta)
-    out[:, 3] = np.bincount(i[m], dist[m], minlength=n)
+    # axis 0: horizontal band (|dy| < eps) -> left / right sets; axis 1: vertical -> top / bottom
+    for along, band, col in ((0, 1, 0), (1, 0, 2)):
+        i, j = _band_pairs(kp[:, band], eps)
+        if len(i) == 0:
+            continue
+        d = kp[j, along] - kp[i, along]
+        keep = (d != 0) & (np.abs(d) < delta)
+        i, j, d = i[keep], j[keep], d[keep]
+        dist = np.hypot(d, kp[j, band] - kp[i, band])
+        # of each pair, ``first`` lies before (left of / above) ``second``: first is in second's
+        # left/top set, second in first's right/bottom set
+        before = d > 0
+        first = np.where(before, i, j)
+        second = np.where(before, j, i)
+        if valid is None:
+            out[:, col] = np.bincount(second, dist, minlength=n)
+            out[:, col + 1] = np.bincount(first, dist, minlength=n)
+        else:
+            sel = ok[first]
+            out[:, col] = np.bincount(second[sel], dist[sel], minlength=n)
+            sel = ok[second]
+            out[:, col + 1] = np.bincount(first[sel], dist[sel], minlength=n)
     return out
 
 
@@ -315,6 +367,233 @@ def consensus_assign(ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndar
     return out
 
 
+# ----------------------------------------------------------------------------------------------
+# refine="field": displacement-field prior, capped sparse assignment, consistency checks
+# ----------------------------------------------------------------------------------------------
+
+
+def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(i, j)`` with ``|pb[j] - pa[i]| <= half`` on both axes (KD-trees, no N x M).
+
+    ``half`` (2,) is the half-size of the search box in the same unit as the points."""
+    from scipy.spatial import cKDTree
+
+    if len(pa) == 0 or len(pb) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    h = np.maximum(np.asarray(half, np.float64), 1e-9)
+    r = cKDTree(pa / h).sparse_distance_matrix(cKDTree(pb / h), 1.0, p=np.inf, output_type="ndarray")
+    return r["i"].astype(np.int64), r["j"].astype(np.int64)
+
+
+def assign_capped(n: int, m: int, ia: np.ndarray, ib: np.ndarray, cost: np.ndarray, max_cost: float) -> Matches:
+    """Minimum-cost matching on the sparse candidates where leaving a keypoint unmatched is allowed.
+
+    Why: :func:`assign_sparse` (the paper's gated Hungarian) first maximises the *number* of
+    assignments, so a keypoint whose true partner is missing (occlusion, detector miss, outside
+    the other view) is forced onto a neighbour's partner and pushes that neighbour onto a wrong
+    one. Here each keypoint may instead stay unmatched at a price of ``max_cost / 2`` per side,
+    so a pair is only taken when it beats leaving both ends unmatched (``cost < max_cost``) and
+    the sum over the matching is minimal. Solved exactly with
+    ``scipy.sparse.csgraph.min_weight_full_bipartite_matching`` on the candidates plus one dummy
+    partner per keypoint (a perfect matching then always exists).
+    """
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
+    keep = np.asarray(cost) < max_cost
+    ia, ib, cost = np.asarray(ia)[keep], np.asarray(ib)[keep], np.asarray(cost, np.float64)[keep]
+    if n == 0 or m == 0 or len(ia) == 0:
+        return Matches()
+    half = 0.5 * max_cost
+    rows = np.r_[ia, np.arange(n), n + np.arange(m), n + ib]
+    cols = np.r_[ib, m + np.arange(n), np.arange(m), m + ia]
+    # +1 on every edge: a perfect matching has exactly n + m edges, so the optimum is unchanged,
+    # and no edge weight is an (implicit-looking) zero
+    w = np.r_[cost, np.full(n, half), np.full(m, half), np.zeros(len(ia))] + 1.0
+    g = csr_matrix((w, (rows, cols)), shape=(n + m, m + n))
+    _, col = min_weight_full_bipartite_matching(g)
+    a = np.flatnonzero(col[:n] < m)
+    b = col[a]
+    c = np.full(len(a), np.nan)
+    # cost of each kept pair (look-up in the candidate list)
+    key = ia * m + ib
+    order = np.argsort(key)
+    pos = order[np.searchsorted(key[order], a * m + b)]
+    c = cost[pos]
+    return Matches(a.astype(np.int64), b.astype(np.int64), c)
+
+
+def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray, cell: float, bin_px: float,
+                 max_points: int, image_shape: tuple[float, float]) -> np.ndarray:
+    """Per-keypoint displacement prior ``(N, 2)`` (u, v image px) by voting in image cells.
+
+    Every candidate pair ``(a, b)`` whose displacement ``kb[b] - ka[a]`` lies in the box
+    ``[lo, hi]`` votes in a histogram of displacements of ``a``'s image cell (``cell`` px, bins of
+    ``bin_px``). True pairs of a cell share nearly one displacement (rigid, smooth panicles), wrong
+    pairs spread over the box, so the peak of the histogram smoothed over 3 x 3 cells and
+    neighbouring bins is the cell's displacement. At most ``max_points`` keypoints of A vote (a
+    regular stride, deterministic). Cells without votes take the global peak.
+    """
+    from scipy.ndimage import uniform_filter
+
+    n = len(ka)
+    lo = np.asarray(lo, np.float64)
+    hi = np.asarray(hi, np.float64)
+    nb = np.maximum(1, np.ceil((hi - lo) / bin_px).astype(int))
+    binw = (hi - lo) / nb
+    stride = max(1, int(np.ceil(n / max(1, max_points))))
+    sub = np.arange(0, n, stride)
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    i, j = box_pairs(ka[sub] + centre, kb, half)
+    glob = centre.copy()
+    ncx = int(np.ceil(image_shape[0] / cell)) + 1
+    ncy = int(np.ceil(image_shape[1] / cell)) + 1
+    if len(i) == 0:
+        return np.tile(glob, (n, 1))
+    i = sub[i]
+    d = kb[j] - ka[i]
+    ub = np.clip(((d - lo) / binw).astype(int), 0, nb - 1)
+    cx = np.clip((ka[i, 0] // cell).astype(int), 0, ncx - 1)
+    cy = np.clip((ka[i, 1] // cell).astype(int), 0, ncy - 1)
+    flat = ((cx * ncy + cy) * nb[0] + ub[:, 0]) * nb[1] + ub[:, 1]
+    hist = np.bincount(flat, minlength=ncx * ncy * nb[0] * nb[1]).astype(np.float32)
+    hist = hist.reshape(ncx, ncy, nb[0], nb[1])
+    g = hist.sum((0, 1))
+    gi = np.unravel_index(int(np.argmax(g)), g.shape)
+    glob = lo + (np.asarray(gi) + 0.5) * binw
+    sm = uniform_filter(hist, size=(3, 3, 3, 3), mode="constant")
+    flat_sm = sm.reshape(ncx, ncy, -1)
+    best = flat_sm.argmax(-1)
+    has = flat_sm.max(-1) > 0
+    peak = lo + (np.stack(np.unravel_index(best, (nb[0], nb[1])), -1) + 0.5) * binw
+    peak[~has] = glob
+    pcx = np.clip((ka[:, 0] // cell).astype(int), 0, ncx - 1)
+    pcy = np.clip((ka[:, 1] // cell).astype(int), 0, ncy - 1)
+    return peak[pcx, pcy]
+
+
+def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np.ndarray) -> np.ndarray:
+    """Displacement predicted for every keypoint of A: the median of its ``k`` nearest matched
+    neighbours' displacements (its own match excluded, so a keypoint never predicts itself).
+    ``fallback`` (N, 2) where fewer than 3 matches exist."""
+    from scipy.spatial import cKDTree
+
+    if len(m) < 3:
+        return fallback
+    pa = ka[m.idx_a]
+    disp = kb[m.idx_b] - pa
+    kk = min(k + 1, len(m))
+    _, nn = cKDTree(pa).query(ka, kk)
+    nn = np.asarray(nn).reshape(len(ka), kk)
+    own = np.full(len(ka), -1)
+    own[m.idx_a] = np.arange(len(m))
+    is_self = nn == own[:, None]
+    # drop the own match where present, else the farthest neighbour: k neighbours per keypoint
+    drop = np.where(is_self.any(1), is_self.argmax(1), kk - 1)
+    keep = np.ones_like(nn, bool)
+    keep[np.arange(len(ka)), drop] = False
+    nn = nn[keep].reshape(len(ka), kk - 1)
+    return np.median(disp[nn], axis=1)
+
+
+def second_best(ia: np.ndarray, ib: np.ndarray, c: np.ndarray, m: Matches, n: int, mm: int) -> np.ndarray:
+    """For each pair of ``m``: the lowest ``c`` among the *other* candidates that share its A or
+    its B keypoint (``inf`` when there is none) - the competitor the ratio test compares with."""
+    alt = np.full(len(m), np.inf)
+    if len(m) == 0:
+        return alt
+    pos_a = np.full(n, -1)
+    pos_a[m.idx_a] = np.arange(len(m))
+    pos_b = np.full(mm, -1)
+    pos_b[m.idx_b] = np.arange(len(m))
+    ka, kb = pos_a[ia], pos_b[ib]
+    sel = (ka >= 0) & (m.idx_b[np.maximum(ka, 0)] != ib)
+    np.minimum.at(alt, ka[sel], c[sel])
+    sel = (kb >= 0) & (m.idx_a[np.maximum(kb, 0)] != ia)
+    np.minimum.at(alt, kb[sel], c[sel])
+    return alt
+
+
+def field_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray, sa: np.ndarray,
+                 sb: np.ndarray, gate, lo: np.ndarray, hi: np.ndarray, sigma: np.ndarray, cfg: SemanticConfig,
+                 scale: float, image_shape: tuple[float, float], fixed_v: float | None = None) -> Matches:
+    """The ``refine="field"`` association of keypoints ``ka`` (image A) with ``kb`` (image B).
+
+    ``ka``/``kb`` image pixels, ``fa``/``fb`` the same in full-resolution units, ``sa``/``sb`` their
+    neighbour sums, ``gate(ia, ib) -> bool`` the horizontal-travel gates, ``[lo, hi]`` (2,) the
+    displacement box searched (image px), ``sigma`` (2,) the expected spread (u, v, image px) of a
+    true displacement around the local field. ``fixed_v``: the v displacement is known (rectified
+    stereo: 0, epipolar lines are image rows) and only the u field is estimated. See the module
+    docstring for the steps.
+    """
+    n, m = len(ka), len(kb)
+    if n == 0 or m == 0:
+        return Matches()
+    s_inv = 1.0 / scale
+    pred = coarse_field(ka, kb, lo, hi, cfg.field_cell_px * s_inv, cfg.field_bin_px * s_inv,
+                        cfg.field_coarse_points, image_shape)
+    if fixed_v is not None:
+        pred[:, 1] = fixed_v
+    w = cfg.field_weight
+    coarse_sig = np.full(2, cfg.field_coarse_tol_px * s_inv / cfg.field_gate_sigma)
+    iters = max(0, cfg.field_iters)
+    for it in range(iters):
+        # shrink the search window geometrically from the coarse tolerance to ``sigma``
+        t = (it + 1) / (iters + 1)
+        sig = coarse_sig ** (1 - t) * np.asarray(sigma) ** t if it else coarse_sig
+        ia, ib, res = _field_candidates(ka, kb, pred, sig, gate, cfg.field_gate_sigma)
+        # the next field comes from unambiguous mutual-best pairs only (cheap, no assignment)
+        sure = _mutual_best(ia, ib, res, n, m)
+        sure = _ratio_test(sure, ia, ib, res, n, m, cfg.field_seed_ratio)
+        pred = local_field(ka, sure, kb, cfg.field_k, pred)
+        if fixed_v is not None:
+            pred[:, 1] = fixed_v
+    ia, ib, res = _field_candidates(ka, kb, pred, np.asarray(sigma, np.float64), gate, cfg.field_gate_sigma)
+    cost = pair_cost(fa, fb, sa, sb, cfg, ia, ib) + w * res * res
+    out = assign_capped(n, m, ia, ib, cost, cfg.max_cost + w * cfg.field_gate_sigma ** 2)
+    return _ratio_test(out, ia, ib, res, n, m, cfg.field_ratio)
+
+
+def _field_candidates(ka: np.ndarray, kb: np.ndarray, pred: np.ndarray, sig: np.ndarray, gate,
+                      gate_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gated candidate pairs within ``gate_sigma`` normalised residual of the predicted field and
+    their residuals ``|(kb - ka - pred) / sig|``."""
+    ia, ib = box_pairs(ka + pred, kb, gate_sigma * sig)
+    ok = gate(ia, ib)
+    ia, ib = ia[ok], ib[ok]
+    r = (kb[ib] - ka[ia] - pred[ia]) / sig
+    res = np.hypot(r[:, 0], r[:, 1])
+    ok = res <= gate_sigma
+    return ia[ok], ib[ok], res[ok]
+
+
+def _mutual_best(ia: np.ndarray, ib: np.ndarray, c: np.ndarray, n: int, m: int) -> Matches:
+    """Pairs that are each other's lowest-``c`` candidate."""
+    if len(ia) == 0:
+        return Matches()
+    a1, b1 = _best_per_row(ia, ib, c)
+    b2, a2 = _best_per_row(ib, ia, c)
+    best_a = np.full(m, -1)
+    best_a[b2] = a2
+    mutual = best_a[b1] == a1
+    return Matches(a1[mutual], b1[mutual], np.zeros(int(mutual.sum())))
+
+
+def _ratio_test(out: Matches, ia: np.ndarray, ib: np.ndarray, resid: np.ndarray, n: int, m: int,
+                ratio: float) -> Matches:
+    """Ambiguity test on the geometric residual: a kept pair must be clearly closer to the local
+    field (``resid`` of every candidate ``(ia, ib)``) than any competitor sharing one of its
+    keypoints (``resid_pair < ratio * resid_competitor``)."""
+    if len(out) == 0 or ratio >= 1.0:
+        return out
+    key = ia * m + ib
+    order = np.argsort(key)
+    pos = order[np.searchsorted(key[order], out.idx_a * m + out.idx_b)]
+    alt = second_best(ia, ib, resid, out, n, m)
+    keep = resid[pos] < ratio * alt
+    return Matches(out.idx_a[keep], out.idx_b[keep], out.cost[keep])
+
+
 def _inside(u: np.ndarray, width: int, border: float) -> np.ndarray:
     return (u >= border) & (u <= width - 1 - border)
 
@@ -326,9 +605,11 @@ def _inside(u: np.ndarray, width: int, border: float) -> np.ndarray:
 
 def match_stereo_keypoints(
     kp_left: np.ndarray, kp_right: np.ndarray, width: int, gates: GateConfig | None = None,
-    cfg: SemanticConfig | None = None,
+    cfg: SemanticConfig | None = None, sums: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Matches:
-    """Left<->right association of one rectified stereo pair (pixels of an image ``width`` wide)."""
+    """Left<->right association of one rectified stereo pair (pixels of an image ``width`` wide).
+
+    ``sums``: precomputed :func:`neighbour_sums` of both images in full-resolution units (cache)."""
     cfg = cfg or SemanticConfig()
     g = (gates or GateConfig()).scaled(width)
     kl = np.asarray(kp_left, np.float64).reshape(-1, 2)
@@ -337,8 +618,20 @@ def match_stereo_keypoints(
         return Matches()
     s = full_res_scale(width)
     fl, fr = kl * s, kr * s
-    sa = neighbour_sums(fl, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk)
-    sb = neighbour_sums(fr, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk)
+    sa = neighbour_sums(fl, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk) if sums is None else sums[0]
+    sb = neighbour_sums(fr, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk) if sums is None else sums[1]
+    if cfg.refine == "field":
+        def gate(ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+            return (((kl[ia, 0] - kr[ib, 0]) >= g.stereo_min_disparity_px)
+                    & (np.abs(kl[ia, 1] - kr[ib, 1]) <= g.stereo_max_dy_px)
+                    & _inside(kl[ia, 0], width, g.stereo_border_px) & _inside(kr[ib, 0], width, g.stereo_border_px))
+
+        band = cfg.field_stereo_band_px / s
+        lo = np.array([-cfg.field_max_disparity_px / s, -band])
+        hi = np.array([-g.stereo_min_disparity_px, band])
+        extent = (float(width), float(max(kl[:, 1].max(), kr[:, 1].max())) + 1.0)
+        return field_assign(kl, kr, fl, fr, sa, sb, gate, lo, hi, np.asarray(cfg.field_stereo_sigma_px) / s,
+                            cfg, s, extent, fixed_v=0.0)
     ia, ib = candidate_pairs(kl, kr, g.stereo_max_dy_px)
     ok = (kl[ia, 0] - kr[ib, 0]) >= g.stereo_min_disparity_px
     ok &= _inside(kl[ia, 0], width, g.stereo_border_px) & _inside(kr[ib, 0], width, g.stereo_border_px)
@@ -352,11 +645,15 @@ def match_stereo_keypoints(
 def match_temporal_keypoints(
     kp_prev: np.ndarray, kp_cur: np.ndarray, width: int, gates: GateConfig | None = None,
     cfg: SemanticConfig | None = None, predicted_shift: float | None = None,
+    predicted_shift_v: float | None = None, sums: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Matches:
     """Previous-left <-> current-left association under the horizontal-travel gates.
 
     ``predicted_shift`` (pixels of this image, u_cur - u_prev) enables the constant-velocity gate
     and the ``overlap`` neighbour option when ``cfg`` asks for them; ``None`` = no prediction.
+    ``predicted_shift_v`` (v_cur - v_prev) centres the vertical search of ``refine="field"``.
+    ``sums``: precomputed :func:`neighbour_sums` (full-resolution units) of both keypoint sets,
+    used only with ``neighbours="all"``.
     """
     cfg = cfg or SemanticConfig()
     g = (gates or GateConfig()).scaled(width)
@@ -371,8 +668,31 @@ def match_temporal_keypoints(
         # count only neighbours that are inside the view common to both frames
         va = _inside(ka[:, 0] + predicted_shift, width, 0.0)
         vb = _inside(kb[:, 0] - predicted_shift, width, 0.0)
-    sa = neighbour_sums(fa, cfg.delta_px, cfg.eps_px, va, chunk=cfg.chunk)
-    sb = neighbour_sums(fb, cfg.delta_px, cfg.eps_px, vb, chunk=cfg.chunk)
+    if sums is not None and va is None:
+        sa, sb = sums
+    else:
+        sa = neighbour_sums(fa, cfg.delta_px, cfg.eps_px, va, chunk=cfg.chunk)
+        sb = neighbour_sums(fb, cfg.delta_px, cfg.eps_px, vb, chunk=cfg.chunk)
+    if cfg.refine == "field":
+        def gate(ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+            return ((g.travel_sign * (kb[ib, 0] - ka[ia, 0]) >= g.temporal_min_shift_px)
+                    & (np.abs(kb[ib, 1] - ka[ia, 1]) <= min(g.temporal_max_dy_px, g.temporal_post_max_dy_px))
+                    & _inside(ka[ia, 0], width, g.temporal_border_px) & _inside(kb[ib, 0], width, g.temporal_border_px))
+
+        vband = min(g.temporal_max_dy_px, g.temporal_post_max_dy_px)
+        if predicted_shift is not None:
+            tol = cfg.prediction_tol_px / s
+            pv = 0.0 if predicted_shift_v is None else float(predicted_shift_v)
+            lo = np.array([predicted_shift - tol, pv - vband])
+            hi = np.array([predicted_shift + tol, pv + vband])
+        else:
+            far = g.travel_sign * cfg.field_max_shift_px / s
+            near = g.travel_sign * g.temporal_min_shift_px
+            lo = np.array([min(far, near), -vband])
+            hi = np.array([max(far, near), vband])
+        extent = (float(width), float(max(ka[:, 1].max(), kb[:, 1].max())) + 1.0)
+        return field_assign(ka, kb, fa, fb, sa, sb, gate, lo, hi, np.asarray(cfg.field_temporal_sigma_px) / s,
+                            cfg, s, extent)
     ia, ib = candidate_pairs(ka, kb, g.temporal_max_dy_px)
     du = kb[ib, 0] - ka[ia, 0]
     ok = g.travel_sign * du >= g.temporal_min_shift_px
@@ -413,17 +733,37 @@ class SeedMatcher:
         self.cfg = cfg or SemanticConfig()
         self.gates = gates or GateConfig()
         self._last_shift: float | None = None
+        self._last_shift_v: float | None = None
+        #: neighbour sums of the last two frames' left keypoints (reused by match_temporal)
+        self._sums: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def _cached_sums(self, kp: np.ndarray) -> np.ndarray:
+        for arr, sums in self._sums:
+            if arr is kp:
+                return sums
+        sums = neighbour_sums(kp * full_res_scale(self.calib.width), self.cfg.delta_px, self.cfg.eps_px)
+        self._remember(kp, sums)
+        return sums
+
+    def _remember(self, kp: np.ndarray, sums: np.ndarray) -> None:
+        self._sums = [*self._sums[-1:], (kp, sums)]
 
     def features_from_detections(self, det: StereoDetections) -> FrameFeatures:
         t0 = time.perf_counter()
-        kl, kr = det.left.keypoints, det.right.keypoints
-        m = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg)
+        kl = np.asarray(det.left.keypoints, np.float64).reshape(-1, 2)
+        kr = np.asarray(det.right.keypoints, np.float64).reshape(-1, 2)
+        s = full_res_scale(self.calib.width)
+        sums = (neighbour_sums(kl * s, self.cfg.delta_px, self.cfg.eps_px),
+                neighbour_sums(kr * s, self.cfg.delta_px, self.cfg.eps_px))
+        m = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg, sums=sums)
         ms = (time.perf_counter() - t0) * 1e3
-        return FrameFeatures(
+        f = FrameFeatures(
             index=det.index, timestamp=det.timestamp, kp_left=kl, kp_right=kr, stereo=m,
             seed_ids_left=det.left.seed_ids, seed_ids_right=det.right.seed_ids,
             timings_ms={"stereo_match": ms},
         )
+        self._remember(f.kp_left, sums[0])
+        return f
 
     def features(self, frame: StereoFrame) -> FrameFeatures:
         if self.detector is None:
@@ -436,11 +776,19 @@ class SeedMatcher:
         return f
 
     def match_temporal(self, prev: FrameFeatures, cur: FrameFeatures) -> Matches:
-        pred = self._last_shift if (self.cfg.temporal_prediction or self.cfg.neighbours == "overlap") else None
-        m = match_temporal_keypoints(prev.kp_left, cur.kp_left, self.calib.width, self.gates, self.cfg, pred)
+        use = self.cfg.temporal_prediction or self.cfg.neighbours == "overlap"
+        pred = self._last_shift if use else None
+        pred_v = self._last_shift_v if use else None
+        sums = (self._cached_sums(prev.kp_left), self._cached_sums(cur.kp_left))
+        m = match_temporal_keypoints(prev.kp_left, cur.kp_left, self.calib.width, self.gates, self.cfg, pred,
+                                     pred_v, sums=sums)
         if len(m) >= 5:
-            self._last_shift = float(np.median(cur.kp_left[m.idx_b, 0] - prev.kp_left[m.idx_a, 0]))
+            d = cur.kp_left[m.idx_b] - prev.kp_left[m.idx_a]
+            self._last_shift = float(np.median(d[:, 0]))
+            self._last_shift_v = float(np.median(d[:, 1]))
         return m
 
     def reset(self) -> None:
         self._last_shift = None
+        self._last_shift_v = None
+        self._sums = []

@@ -67,13 +67,13 @@ class ClusterConfig(ConfigModel):
 
 
 class SlamAssociationConfig(SemanticConfig):
-    """The pipeline's association defaults: the paper's cost + our consensus refinement and the
-    constant-velocity temporal gate. On the dense simulated panicles (2,000-5,000 keypoints per
-    image) the paper's single assignment reaches a stereo precision of ~0.3 and needs ~20-50 s per
-    frame on 2 cores; ``--set association.refine=none --set association.temporal_prediction=false``
-    runs the paper's method unchanged."""
+    """The pipeline's association defaults: the paper's cost assigned inside a local displacement
+    field prior (``refine="field"``, see seedmap.associate.semantic) with the constant-velocity
+    temporal prediction. The paper's method unchanged is
+    ``--set association.refine=none --set association.temporal_prediction=false``; the session-1
+    default was ``--set association.refine=consensus``."""
 
-    refine: Literal["none", "consensus"] = "consensus"
+    refine: Literal["none", "consensus", "field"] = "field"
     temporal_prediction: bool = True
 
 
