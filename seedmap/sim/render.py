@@ -61,6 +61,21 @@ def _o3d():
     return o3d
 
 
+def _xf(a: np.ndarray, M: np.ndarray, t: np.ndarray | None = None) -> np.ndarray:
+    """``a @ M.T + t`` for many points ``a`` (N, 3) as float32 (OpenCV's transform: numpy's matmul of
+    an (N, 3) by a 3 x 3 matrix is ~50x slower)."""
+    import cv2
+
+    a = np.ascontiguousarray(a, np.float32)
+    if len(a) == 0:
+        return a.reshape(0, 3)
+    m = np.zeros((3, 4), np.float32)
+    m[:, :3] = M
+    if t is not None:
+        m[:, 3] = t
+    return cv2.transform(a.reshape(-1, 1, 3), m).reshape(-1, 3)
+
+
 def _rays_tensor(o: np.ndarray, d: np.ndarray):
     o3d = _o3d()
     r = np.empty((len(d), 6), np.float32)
@@ -103,6 +118,35 @@ def _panicle_bvh(world: World, k: int) -> _PanicleBVH:
     return bvh
 
 
+SOIL_HALF_WIDTH = 6.0  # m: the soil rectangle spans y in [-6, 6] and x 4 m beyond the range's gaps
+
+
+def _tri_spheres(world: World, key: str, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding spheres (centre, radius) of static triangles ``tri`` (T, 3, 3), cached under ``key``."""
+    got = world.cache.get(key)
+    if got is None:
+        c = tri.mean(axis=1)
+        got = world.cache[key] = (c, np.linalg.norm(tri - c[:, None, :], axis=2).max(axis=1))
+    return got
+
+
+def _leaf_spheres(world: World) -> tuple[np.ndarray, np.ndarray]:
+    """Per leaf, a sphere holding it at every instant: the rest bounding sphere grown by the largest
+    sway displacement (a rotation by at most ``theta`` about the attachment moves a vertex at most
+    ``theta |v - attach|``)."""
+    got = world.cache.get("leaf_spheres")
+    if got is None:
+        v = world.leaf_vertices
+        c = 0.5 * (v.min(axis=1) + v.max(axis=1))
+        r = np.linalg.norm(v - c[:, None, :], axis=2).max(axis=1)
+        if world.cfg.wind.enabled and len(v):
+            amp = np.abs(world.leaf_sway[..., 0]).sum(axis=2)  # (L, 2) bound of each tilt angle
+            theta = np.linalg.norm(amp, axis=1)
+            r = r + theta * np.linalg.norm(v - world.leaf_attach[:, None, :], axis=2).max(axis=1)
+        got = world.cache["leaf_spheres"] = (c, r + 1e-4)
+    return got
+
+
 PIX_MARGIN = 1.5  # px around projected proxies: float32 rays, and sub-samples up to 0.5 px off a centre
 
 
@@ -125,15 +169,43 @@ class _Cover:
         rr, cc = np.nonzero(self.mask)
         return (rr + self.r0) * self.W + (cc + self.c0)
 
-    def lookup(self, pix: np.ndarray) -> np.ndarray:
-        """Indices of the points ``pix`` (N, 2) of (u, v) whose nearest pixel centre is covered."""
+    def lookup(self, rc: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Indices of the points whose nearest pixel centre ``rc = (rows, cols)`` (see ``_nearest_rc``)
+        is covered."""
+        r, c = rc
         if self.mask is None:
-            return np.arange(len(pix))
+            return np.arange(len(r))
         h, w = self.mask.shape
-        c = np.floor(pix[:, 0] + 0.5).astype(np.int64) - self.c0
-        r = np.floor(pix[:, 1] + 0.5).astype(np.int64) - self.r0
-        idx = np.nonzero((c >= 0) & (c < w) & (r >= 0) & (r < h))[0]
-        return idx[self.mask[r[idx], c[idx]]]
+        idx = np.nonzero((c >= self.c0) & (c < self.c0 + w) & (r >= self.r0) & (r < self.r0 + h))[0]
+        return idx[self.mask[r[idx] - self.r0, c[idx] - self.c0]]
+
+
+def _nearest_rc(pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column (int32) of the pixel centre nearest to each (u, v) of ``pix`` (N, 2)."""
+    return np.floor(pix[:, 1] + 0.5).astype(np.int32), np.floor(pix[:, 0] + 0.5).astype(np.int32)
+
+
+@dataclass
+class _CamCovers:
+    """One camera's pixel covers: of the env BVH (None: test every ray) and of each active panicle."""
+
+    env: _Cover | None
+    pan: list[_Cover]
+
+
+def _grow_shadow(boxes: np.ndarray, z_near: np.ndarray, L: np.ndarray, rho: float, calib: StereoCalib) -> np.ndarray:
+    """Boxes of occluders (nearest depth ``z_near`` each) grown to the pixels they may shadow, for a
+    flash disc of radius ``rho`` at ``L`` (camera frame); see ``_FrameScene.covers``."""
+    g = np.array(boxes, float, copy=True)
+    full = (z_near <= 0.05) | (abs(L[2]) > 0.5 * z_near)
+    zz = np.where(full, 1.0, z_near - abs(L[2]))
+    sx, sy = calib.fx / zz, calib.fy / zz
+    g[:, 0] -= sx * (max(L[0], 0) + rho) + 1
+    g[:, 2] += sx * (max(-L[0], 0) + rho) + 1
+    g[:, 1] -= sy * (max(L[1], 0) + rho) + 1
+    g[:, 3] += sy * (max(-L[1], 0) + rho) + 1
+    g[full] = (-1e9, -1e9, 1e9, 1e9)
+    return g
 
 
 def _sphere_boxes(pc: np.ndarray, r: np.ndarray, calib: StereoCalib, margin: float = PIX_MARGIN) -> np.ndarray:
@@ -188,7 +260,15 @@ def _cover_from_boxes(boxes: np.ndarray, H: int, W: int) -> _Cover:
 
 
 class _FrameScene:
-    """The world frozen at time ``t``: env BVH (soil, stalks, swayed leaves) + the panicles in view."""
+    """The world frozen at time ``t``: env (analytic soil plane + a BVH of the stalks and swayed leaves
+    that can matter for these cameras) + the panicles in view.
+
+    Env culling: a surface seen by a camera lies in its view frustum, and a point on a shadow segment
+    from such a surface to a flash point ``L`` lies within ``|L - camera|`` of that frustum (the
+    frustum is a cone with its apex at the camera). So only triangles whose bounding spheres come
+    within that distance (plus the flash radius) of a camera's frustum can change the pixels.
+    Triangle ids keep the soil's two triangles first (``n_soil``) so shading reads them like any
+    other env triangle."""
 
     def __init__(self, world: World, t: float, cams: list[np.ndarray], calib: StereoCalib,
                  light: np.ndarray) -> None:
@@ -212,27 +292,46 @@ class _FrameScene:
             cls.append(np.full(len(f), c, np.uint8))
             off += len(v)
 
+        self.soil_x: tuple[float, float] | None = None
         if world.has_soil:
             x0, x1 = -world.cfg.world.gap - 4.0, world.length + world.cfg.world.gap + 4.0
-            v = np.array([[x0, -6, 0], [x1, -6, 0], [x1, 6, 0], [x0, 6, 0]], float)
+            self.soil_x = (x0, x1)
+            v = np.array([[x0, -SOIL_HALF_WIDTH, 0], [x1, -SOIL_HALF_WIDTH, 0], [x1, SOIL_HALF_WIDTH, 0],
+                          [x0, SOIL_HALF_WIDTH, 0]], float)
             add(v, np.array([[0, 1, 2], [0, 2, 3]]), np.tile([0, 0, 1.0], (4, 1)),
                 np.tile(world.soil_color, (4, 1)), np.zeros((4, 2)), CLS_SOIL)
+        self.n_soil = len(F) and len(F[0])
+        margin = max(float(np.linalg.norm(light - T[:3, 3])) for T in cams) + world.cfg.imaging.flash_radius + 0.01
+
+        def in_view(c: np.ndarray, r: np.ndarray) -> np.ndarray:
+            keep = np.zeros(len(c), bool)
+            for T in cams:
+                keep |= _sphere_in_frustum(c, r + margin, T, calib)
+            return keep
+
         if len(world.stalk_vertices):
             vn = world.cache.get("stalk_normals")
             if vn is None:
                 vn = world.cache["stalk_normals"] = vertex_normals(world.stalk_vertices, world.stalk_triangles)
-            add(world.stalk_vertices, world.stalk_triangles, vn, world.stalk_color,
-                np.zeros((len(world.stalk_vertices), 2)), CLS_STALK)
-        nL = len(world.leaf_vertices)
-        if nL:
-            M = world.leaf_motion(t)
-            lv = np.einsum("lij,lvj->lvi", M[:, :3, :3], world.leaf_vertices) + M[:, None, :3, 3]
-            nv = lv.shape[1]
-            lf = world.leaf_triangles
-            allf = (lf[None] + (np.arange(nL) * nv)[:, None, None]).reshape(-1, 3)
-            allv = lv.reshape(-1, 3)
-            add(allv, allf, vertex_normals(allv, allf), np.repeat(world.leaf_color, nv, axis=0),
-                np.tile(world.leaf_uv, (nL, 1)), CLS_LEAF)
+            sc, sr = _tri_spheres(world, "stalk_spheres", world.stalk_vertices[world.stalk_triangles])
+            keep = in_view(sc, sr)
+            if keep.any():
+                add(world.stalk_vertices, world.stalk_triangles[keep], vn, world.stalk_color,
+                    np.zeros((len(world.stalk_vertices), 2)), CLS_STALK)
+        if len(world.leaf_vertices):
+            lc, lr = _leaf_spheres(world)
+            sel = np.nonzero(in_view(lc, lr))[0]
+            nL = len(sel)
+            if nL:
+                M = world.leaf_motion(t)[sel]
+                lv = np.einsum("lij,lvj->lvi", M[:, :3, :3], world.leaf_vertices[sel]) + M[:, None, :3, 3]
+                nv = lv.shape[1]
+                lf = world.leaf_triangles
+                allf = (lf[None] + (np.arange(nL) * nv)[:, None, None]).reshape(-1, 3)
+                allv = lv.reshape(-1, 3)
+                add(allv, allf, vertex_normals(allv, allf), np.repeat(world.leaf_color[sel], nv, axis=0),
+                    np.tile(world.leaf_uv, (nL, 1)), CLS_LEAF)
+        self.env = None
         if F:
             self.V = np.vstack(V).astype(np.float32)
             self.F = np.vstack(F).astype(np.int64)
@@ -241,11 +340,10 @@ class _FrameScene:
             self.VUV = np.vstack(VUV).astype(np.float32)
             self.tri_cls = np.concatenate(cls)
             self.tri_albedo = self.VC[self.F[:, 0]]  # albedo is constant per leaf / stalk
-            self.env = o3d.t.geometry.RaycastingScene()
-            self.env.add_triangles(o3d.core.Tensor.from_numpy(self.V),
-                                   o3d.core.Tensor.from_numpy(self.F.astype(np.uint32)))
-        else:
-            self.env = None
+            if len(self.F) > self.n_soil:  # the soil is a plane, intersected analytically
+                self.env = o3d.t.geometry.RaycastingScene()
+                self.env.add_triangles(o3d.core.Tensor.from_numpy(self.V),
+                                       o3d.core.Tensor.from_numpy(self.F[self.n_soil:].astype(np.uint32)))
         # panicles that can be seen from (or shadow what is seen from) any of the cameras
         self.active = np.zeros(0, np.int64)
         self.centers = np.zeros((0, 3), np.float32)
@@ -264,22 +362,44 @@ class _FrameScene:
         self.bvh = {int(k): _panicle_bvh(world, int(k)) for k in self.active}
         self.seed_start = np.array([p.seed_start for p in world.panicles], np.int64)
 
-    # ---- panicle selection ----
-    def covers(self, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray,
-               cfg: SimConfig) -> tuple[list[_Cover], list[_Cover]]:
-        """Per active panicle, the pixels of camera ``T_wc`` whose primary rays may hit it, and the
-        pixels whose surface point may be shadowed by it (conservative: a superset of the truth).
+    def _soil_hits(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Indices of the rays ``o + t d`` meeting the soil rectangle (z = 0) at ``0 < t < tmax``, and
+        their ``t``."""
+        oz = o[:, 2] if len(o) > 1 else np.full(len(d), o[0, 2], np.float32)
+        dz = d[:, 2]
+        cand = np.nonzero(oz * dz < 0)[0]  # moving towards the plane
+        ts = -oz[cand] / dz[cand]
+        keep = ts < tmax[cand]
+        cand, ts = cand[keep], ts[keep]
+        oc = o[cand] if len(o) > 1 else o
+        x = oc[:, 0] + ts * d[cand, 0]
+        y = oc[:, 1] + ts * d[cand, 1]
+        x0, x1 = self.soil_x
+        inside = (x >= x0) & (x <= x1) & (np.abs(y) <= SOIL_HALF_WIDTH)
+        return cand[inside], ts[inside]
 
-        Primary: the projected boxes of the panicle's proxies (one sphere per seed, the rachis
-        triangles) at this instant. Shadows: the segment from a surface point to a flash point ``L``
-        (camera frame, ``L_z ~ 0``) projects to the half-line from the pixel in direction
-        ``(fx L_x, fy L_y)``; where it can meet the panicle (depth >= z_near) it has moved at most
-        ``f |L| / z_near`` pixels, so each proxy box is grown by that much against the flash direction
-        (plus the flash radius)."""
+    # ---- ray selection ----
+    def covers(self, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray,
+               cfg: SimConfig) -> tuple[_CamCovers, _CamCovers]:
+        """For camera ``T_wc``: the pixels whose rays may hit the env BVH / each active panicle, and
+        the pixels whose surface point may be shadowed by them (conservative: supersets of the truth).
+
+        Primary: the projected boxes of the env triangles and of the panicles' proxies (one sphere
+        per seed, the rachis triangles) at this instant. Shadows: the segment from a surface point
+        to a flash point ``L`` (camera frame, ``L_z ~ 0``) projects to the half-line from the pixel in
+        direction ``(fx L_x, fy L_y)``; where it can meet an occluder at depth >= z_near it has moved
+        at most ``f |L| / z_near`` pixels, so each box is grown by that much against the flash
+        direction (plus the flash radius)."""
         H, W = calib.height, calib.width
         R, o = T_wc[:3, :3], T_wc[:3, 3]
         L = R.T @ (light - o)
         rho = cfg.imaging.flash_radius
+        env = env_s = None
+        if self.env is not None:
+            tri = _xf(self.V, R.T, -R.T @ o)[self.F[self.n_soil:]]  # (T, 3, 3) camera frame
+            boxes = _triangle_boxes(tri, calib)
+            env = _cover_from_boxes(boxes, H, W)
+            env_s = _cover_from_boxes(_grow_shadow(boxes, tri[:, :, 2].min(axis=1), L, rho, calib), H, W)
         pc = (self.centers - o) @ R
         prim, shad = [], []
         for j, k in enumerate(self.active):
@@ -289,29 +409,20 @@ class _FrameScene:
             boxes = np.vstack([_sphere_boxes(b.seed_xyz @ M.T + tr, b.seed_r, calib),
                                _triangle_boxes((b.rachis_tri.reshape(-1, 3) @ M.T + tr).reshape(-1, 3, 3), calib)])
             prim.append(_cover_from_boxes(boxes, H, W))
-            z_near = pc[j, 2] - self.radii[j]
-            if z_near <= 0.05 or abs(L[2]) > 0.5 * z_near:
-                shad.append(_Cover(H, W, 0, 0, None))
-                continue
-            sx, sy = calib.fx / (z_near - abs(L[2])), calib.fy / (z_near - abs(L[2]))
-            g = boxes.copy()
-            g[:, 0] -= sx * (max(L[0], 0) + rho) + 1
-            g[:, 2] += sx * (max(-L[0], 0) + rho) + 1
-            g[:, 1] -= sy * (max(L[1], 0) + rho) + 1
-            g[:, 3] += sy * (max(-L[1], 0) + rho) + 1
-            shad.append(_cover_from_boxes(g, H, W))
-        return prim, shad
+            z_near = np.full(len(boxes), pc[j, 2] - self.radii[j])
+            shad.append(_cover_from_boxes(_grow_shadow(boxes, z_near, L, rho, calib), H, W))
+        return _CamCovers(env, prim), _CamCovers(env_s, shad)
 
-    def _select(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, pix: np.ndarray | None,
-                covers: list[_Cover] | None, grid: bool = False) -> list[np.ndarray]:
+    def _select(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray, rc: tuple | None,
+                covers: _CamCovers | None, grid: bool = False) -> list[np.ndarray]:
         """Per active panicle, the rays that may hit it (pixel cover, else a bounding-sphere test)."""
         P = len(self.active)
         if P == 0 or len(d) == 0:
             return [np.zeros(0, np.int64)] * P
         if grid and covers is not None:  # rays of all pixels, row-major
-            return [c.flat() for c in covers]
-        if pix is not None and covers is not None:
-            return [c.lookup(pix) for c in covers]
+            return [c.flat() for c in covers.pan]
+        if rc is not None and covers is not None:
+            return [c.lookup(rc) for c in covers.pan]
         C = self.centers
         r2 = self.radii ** 2
         if o.shape[0] == 1:
@@ -327,7 +438,7 @@ class _FrameScene:
 
     # ---- queries ----
     def trace(self, o: np.ndarray, d: np.ndarray, pix: np.ndarray | None = None,
-              covers: list[_Cover] | None = None, grid: bool = False) -> _Hits:
+              covers: _CamCovers | None = None, grid: bool = False) -> _Hits:
         """Closest hit of rays ``o + t d`` (``d`` unit float32 (N, 3); ``o`` (1, 3) or (N, 3)).
 
         ``pix``/``covers``: pixel coordinates of camera rays and the panicles' pixel covers (see
@@ -337,25 +448,42 @@ class _FrameScene:
         o = np.asarray(o, np.float32)
         cls = np.zeros(n, np.uint8)
         obj = np.full(n, -1, np.int32)
-        if self.env is not None and n:
+        rc = None if pix is None or grid or covers is None else _nearest_rc(pix)
+        env_sel = None
+        if covers is not None and covers.env is not None:
+            env_sel = covers.env.flat() if grid else covers.env.lookup(rc) if rc is not None else None
+        if self.env is not None and n and env_sel is None:
             ans = self.env.cast_rays(_rays_tensor(o, d))
             t = ans["t_hit"].numpy()
             prim = ans["primitive_ids"].numpy()
             bary = ans["primitive_uvs"].numpy()
-            hit = np.nonzero(t < np.inf)[0]
-            cls[hit] = self.tri_cls[prim[hit]]
         else:
             t = np.full(n, np.inf, np.float32)
             prim = np.zeros(n, np.uint32)
             bary = np.zeros((n, 2), np.float32)
-        for j, idx in enumerate(self._select(o, d, t, pix, covers, grid)):
+            if self.env is not None and env_sel is not None and len(env_sel):
+                ans = self.env.cast_rays(_rays_tensor(o if len(o) == 1 else o[env_sel], d[env_sel]))
+                t[env_sel] = ans["t_hit"].numpy()
+                prim[env_sel] = ans["primitive_ids"].numpy()
+                bary[env_sel] = ans["primitive_uvs"].numpy()
+        if self.env is not None:
+            hit = np.nonzero(t < np.inf)[0]
+            prim[hit] += self.n_soil
+            cls[hit] = self.tri_cls[prim[hit]]
+        if self.soil_x is not None and n:
+            sh, ts = self._soil_hits(o, d, t)
+            t[sh] = ts
+            cls[sh] = CLS_SOIL
+            prim[sh] = 0
+            bary[sh] = 0.0
+        for j, idx in enumerate(self._select(o, d, t, rc, covers, grid)):
             if len(idx) == 0:
                 continue
             k = int(self.active[j])
             Di = self.Dinv32[k]
             oo = o if len(o) == 1 else o[idx]
-            o_r = oo @ Di[:3, :3].T + Di[:3, 3]
-            d_r = d[idx] @ Di[:3, :3].T
+            o_r = _xf(oo, Di[:3, :3], Di[:3, 3])
+            d_r = _xf(d[idx], Di[:3, :3])
             bvh = self.bvh[k]
             ans = bvh.scene.cast_rays(_rays_tensor(o_r, d_r))
             tk = ans["t_hit"].numpy()
@@ -376,7 +504,7 @@ class _FrameScene:
         return _Hits(t, cls, obj, prim, bary, seed)
 
     def occluded(self, o: np.ndarray, v: np.ndarray, pix: np.ndarray | None = None,
-                 covers: list[_Cover] | None = None) -> np.ndarray:
+                 covers: _CamCovers | None = None) -> np.ndarray:
         """True where the segment ``o -> o + v`` (float32 (N, 3), not unit) hits anything.
 
         ``pix``/``covers``: for shadow rays of camera pixels, the pixels and per-panicle shadow covers
@@ -386,18 +514,27 @@ class _FrameScene:
         if n == 0:
             return occ
         tfar = 1.0 - 1e-4
+        rc = None if pix is None or covers is None else _nearest_rc(pix)
         if self.env is not None:
-            occ = self.env.test_occlusions(_rays_tensor(o, v), tnear=0.0, tfar=tfar).numpy().astype(bool)
+            if rc is not None and covers.env is not None:
+                sel = covers.env.lookup(rc)
+                if len(sel):
+                    occ[sel] = self.env.test_occlusions(_rays_tensor(o[sel], v[sel]), tnear=0.0,
+                                                        tfar=tfar).numpy().astype(bool)
+            else:
+                occ = self.env.test_occlusions(_rays_tensor(o, v), tnear=0.0, tfar=tfar).numpy().astype(bool)
+        if self.soil_x is not None:
+            occ[self._soil_hits(o, v, np.full(n, tfar, np.float32))[0]] = True
         rem = np.nonzero(~occ)[0]
         if len(rem) == 0 or len(self.active) == 0:
             return occ
         length = np.sqrt((v[rem] * v[rem]).sum(1))
         du = v[rem] / np.maximum(length, 1e-12)[:, None]
-        if pix is not None and covers is not None:
-            pr = pix[rem]
+        if rc is not None:
+            rc = (rc[0][rem], rc[1][rem])
             sels = []
-            for j, cov in enumerate(covers):
-                cand = cov.lookup(pr)
+            for j, cov in enumerate(covers.pan):
+                cand = cov.lookup(rc)
                 if len(cand):
                     # exact sphere test on the candidates only
                     oc = self.centers[j] - o[rem[cand]]
@@ -416,8 +553,8 @@ class _FrameScene:
                 continue
             k = int(self.active[j])
             Di = self.Dinv32[k]
-            o_r = o[idx] @ Di[:3, :3].T + Di[:3, 3]
-            v_r = v[idx] @ Di[:3, :3].T
+            o_r = _xf(o[idx], Di[:3, :3], Di[:3, 3])
+            v_r = _xf(v[idx], Di[:3, :3])
             occ[idx] = self.bvh[k].scene.test_occlusions(_rays_tensor(o_r, v_r), tnear=0.0,
                                                           tfar=tfar).numpy().astype(bool)
         return occ
@@ -482,7 +619,7 @@ def _normalize(a: np.ndarray) -> np.ndarray:
 
 def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray, light_axes: np.ndarray,
            cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
-           scovers: list[_Cover] | None = None) -> np.ndarray:
+           scovers: _CamCovers | None = None) -> np.ndarray:
     """Linear RGB radiance (1 = white surface facing the flash at REF_DISTANCE) per ray (float32 (N, 3))."""
     direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
     return direct * vis[:, None] + amb
@@ -490,7 +627,7 @@ def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.nd
 
 def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray,
                  light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
-                 scovers: list[_Cover] | None = None):
+                 scovers: _CamCovers | None = None):
     """``(direct (N, 3), flash visibility (N,), ambient (N, 3))``: radiance = direct * vis + ambient."""
     ic = cfg.imaging
     world = fs.world
@@ -547,7 +684,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
         objs = h.obj[live[rm]]
         for k in np.unique(objs):
             sel = rm[objs == k]
-            nrm[sel] = fs.bvh[int(k)].face_normals[prim[sel]] @ fs.D32[k, :3, :3].T
+            nrm[sel] = _xf(fs.bvh[int(k)].face_normals[prim[sel]], fs.D32[k, :3, :3])
         albedo[rm] = np.array([0.30, 0.26, 0.13], np.float32)
         ks[rm] = 0.04
     # seeds: analytic ellipsoid normal (smooth shading on a low-poly mesh), glume at the base
@@ -560,17 +697,19 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
         for k in uk:
             sel = objs == k
             Di = fs.Dinv32[k]
-            p_rest[sel] = p[sm[sel]] @ Di[:3, :3].T + Di[:3, 3]
+            p_rest[sel] = _xf(p[sm[sel]], Di[:3, :3], Di[:3, 3])
         A = f32["axes"][sid]
         r = f32["radii"][sid]
-        q = np.matmul((p_rest - f32["xyz"][sid])[:, None, :], A)[:, 0, :]  # local coordinates
-        n_rest = np.matmul(A, (q / (r * r))[:, :, None])[:, :, 0]
+        dp = p_rest - f32["xyz"][sid]
+        q = dp[:, 0:1] * A[:, 0, :] + dp[:, 1:2] * A[:, 1, :] + dp[:, 2:3] * A[:, 2, :]  # local coordinates
+        w = q / (r * r)
+        n_rest = A[:, :, 0] * w[:, 0:1] + A[:, :, 1] * w[:, 1:2] + A[:, :, 2] * w[:, 2:3]
         if len(uk) == 1:
-            nrm[sm] = n_rest @ fs.D32[uk[0], :3, :3].T
+            nrm[sm] = _xf(n_rest, fs.D32[uk[0], :3, :3])
         else:
             for k in uk:
                 sel = objs == k
-                nrm[sm[sel]] = n_rest[sel] @ fs.D32[k, :3, :3].T
+                nrm[sm[sel]] = _xf(n_rest[sel], fs.D32[k, :3, :3])
         zrel = q[:, 2] / r[:, 2]
         g = np.clip((f32["extent"][sid] + 0.15 - zrel) * (1 / 0.3), 0, 1)
         g = g * g * (3 - 2 * g)
@@ -661,7 +800,7 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     R = T_wc[:3, :3].astype(np.float32)
     o = T_wc[:3, 3].astype(np.float32)[None, :]
     dc, pix = _camera_dirs(fs.world, calib)
-    d = dc @ R.T
+    d = _xf(dc, R)
     covers, scovers = fs.covers(T_wc, calib, light, cfg)
     h = fs.trace(o, d, pix, covers, grid=True)
     direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
@@ -692,7 +831,7 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
             grid_off = np.array([(du, dv) for dv in offs for du in offs], np.float32)  # (S, 2)
             S = len(grid_off)
             ps = (pix[idx][None, :, :] + grid_off[:, None, :]).reshape(-1, 2)
-            ds = _unit_dirs(calib, ps) @ R.T
+            ds = _xf(_unit_dirs(calib, ps), R)
             hs = fs.trace(o, ds, ps, covers)
             ks = _object_key(hs)
             same = ks == np.tile(key[idx], S)
