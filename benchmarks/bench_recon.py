@@ -27,7 +27,7 @@ import numpy as np
 COUNT_METHODS = ("density", "tracks", "rays")
 
 
-def _count_diagnostics(rec, root: Path, gt_ids: np.ndarray) -> dict:
+def _count_diagnostics(obs: dict, root: Path, gt_ids: np.ndarray) -> dict:
     """Oracle checks that split the count error into its sources (gt detector only): ``ids_2views``
     = distinct true seeds among the observations seen from >= 2 views (what a perfect
     de-duplication of these observations would count), and each method run on the TRUE seed
@@ -39,32 +39,76 @@ def _count_diagnostics(rec, root: Path, gt_ids: np.ndarray) -> dict:
     from seedmap.recon.count import count_seeds
     from seedmap.sim.panicle_scan import gt_rest_poses
 
-    ok = rec.obs_seed_id >= 0
-    key = np.unique(rec.obs_seed_id[ok] * (rec.obs_view.max() + 1) + rec.obs_view[ok])
-    ids, nv = np.unique(key // (rec.obs_view.max() + 1), return_counts=True)
+    sid, view, poses = obs["seed_id"], obs["view"], obs["poses"]
+    ok = sid >= 0
+    key = np.unique(sid[ok] * (view.max() + 1) + view[ok])
+    ids, nv = np.unique(key // (view.max() + 1), return_counts=True)
     out = {"ids_observed": int(len(ids)), "ids_2views": int(np.sum(nv >= 2)),
            "countable_observed_2views": int(len(np.intersect1d(ids[nv >= 2], gt_ids)))}
     seeds = SeedmapDataset(root).gt_seeds()
     pos = dict(zip(seeds.seed_id.tolist(), seeds.xyz))
-    T = invert(pose_errors(rec.poses, gt_rest_poses(root)).T_align)
-    true_xyz = transform_points(T, np.array([pos[i] for i in rec.obs_seed_id[ok]]).reshape(-1, 3))
-    origin = rec.poses[rec.obs_view[ok]][:, :3, 3]
+    T = invert(pose_errors(poses, gt_rest_poses(root)).T_align)
+    true_xyz = transform_points(T, np.array([pos[i] for i in sid[ok]]).reshape(-1, 3))
+    origin = poses[view[ok]][:, :3, 3]
     for meth in COUNT_METHODS:
-        out[f"count_{meth}_true_positions"] = count_seeds(true_xyz, rec.obs_view[ok], rec.obs_diam[ok],
+        out[f"count_{meth}_true_positions"] = count_seeds(true_xyz, view[ok], obs["diam"][ok],
                                                           CountConfig(method=meth), origin=origin).count
     return out
 
 
+def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, oracle: bool) -> dict:
+    """Every count method on one reconstruction's observations, against both references."""
+    from seedmap.recon.config import CountConfig
+    from seedmap.recon.count import count_seeds
+
+    m: dict = {}
+    origin = obs["poses"][obs["view"]][:, :3, 3]
+    for meth in COUNT_METHODS:
+        c1 = time.process_time()
+        n = count_seeds(obs["xyz"], obs["view"], obs["diam"], CountConfig(method=meth), origin=origin).count
+        m[f"count_{meth}_cpu_s"] = time.process_time() - c1
+        m[f"count_{meth}"] = n
+        m[f"count_{meth}_ape"] = abs(n - gt_vis) / max(gt_vis, 1) * 100
+        m[f"count_{meth}_countable_err"] = (n - len(countable)) / max(len(countable), 1) * 100
+    if oracle:
+        m["diagnostics"] = _count_diagnostics(obs, root, countable)
+    return m
+
+
+def _summarize(rows: list[dict], modes: tuple[str, ...], det: str) -> dict:
+    from seedmap.eval.recon_metrics import summarize_scan_rows
+
+    tune, held = rows[0], rows[1:]
+    summary = summarize_scan_rows(rows, list(modes), (tune["panicle"],))
+    summary["detector"] = det
+    for mode in modes:
+        for meth in COUNT_METHODS:
+            ape = [r["modes"][mode][f"count_{meth}_ape"] for r in held]
+            err = [r["modes"][mode][f"count_{meth}_countable_err"] for r in held]
+            summary["modes"][mode][f"count_{meth}"] = {
+                "mape_vs_visible": float(np.mean(ape)), "mape_vs_countable": float(np.mean(np.abs(err))),
+                "mean_signed_pct_vs_countable": float(np.mean(err)),
+                "tuning_panicle_pct_vs_countable": round(tune["modes"][mode][f"count_{meth}_countable_err"], 1),
+                "per_panicle_pct_vs_countable": {r["panicle"]: round(e, 1) for r, e in zip(held, err)}}
+    # the naive 2D baseline: detections / (detections per seed on the tuning panicle)
+    for ref in ("gt_visible", "gt_countable"):
+        vps = tune["detections"] / max(tune[ref], 1)
+        summary[f"naive_2d_vs_{ref.split('_')[1]}"] = {"views_per_seed": vps, "mape": float(np.mean(
+            [abs(r["detections"] / vps - r[ref]) / r[ref] * 100 for r in held])), "mean_signed_pct": float(np.mean(
+            [(r["detections"] / vps - r[ref]) / r[ref] * 100 for r in held]))}
+    summary["prepare_cpu_s_per_panicle"] = float(np.mean([r["prepare_cpu_s"] for r in rows]))
+    return summary
+
+
 def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("gt",),
-             modes: tuple[str, ...] = ("fk", "full", "seeds")) -> dict:
+             modes: tuple[str, ...] = ("fk", "full", "seeds"), recount: bool = False) -> dict:
     """Accuracy of fk / full / seeds registration and of seed counting on simulated scans, per detector.
 
     Count references (both reported): ``gt_visible`` = centre visible and >= 12 px in >= 1 left view
     (session 1); ``gt_countable`` = >= 12 px in the left AND right image of >= 2 views (what a 3D
-    counter that needs stereo depth and a second view can count)."""
-    from seedmap.eval.recon_metrics import summarize_scan_rows
-    from seedmap.recon.config import CountConfig, ReconConfig
-    from seedmap.recon.count import count_seeds
+    counter that needs stereo depth and a second view can count). Each reconstruction's seed
+    observations are cached (``cache/pSEED_MODE.npz``); ``recount`` re-runs only the counting on them."""
+    from seedmap.recon.config import ReconConfig
     from seedmap.recon.pipeline import gt_countable_seeds, gt_metrics, gt_visible_seeds, prepare_scan, reconstruct
     from seedmap.sim.arm import ArmConfig
     from seedmap.sim.panicle_scan import PanicleScanConfig, simulate_panicle
@@ -72,10 +116,20 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
     out_all: dict = {}
     for det in detectors:
         out = Path("results/recon_eval_bench") / det
-        out.mkdir(parents=True, exist_ok=True)
+        (out / "cache").mkdir(parents=True, exist_ok=True)
         rows = []
         for s in seeds:
             root = Path(f"data/recon_eval/p{s}")
+            if recount:
+                row = json.loads((out / f"p{s}.json").read_text())
+                for mode in row["modes"]:
+                    with np.load(out / "cache" / f"p{s}_{mode}.npz") as z:
+                        obs = {k: z[k] for k in z.files}
+                    row["modes"][mode].update(_count_fields(obs, row["gt_visible"], gt_countable_seeds(root, 12),
+                                                            root, row["oracle"] and mode == "seeds"))
+                (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
+                rows.append(row)
+                continue
             if not root.exists():
                 simulate_panicle(PanicleScanConfig(seed=s, arm=ArmConfig(views=views)), root, progress=True)
             cfg = ReconConfig(detector=det)
@@ -83,8 +137,8 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
             prep = prepare_scan(root, cfg, progress=True)
             gt_vis = int(len(gt_visible_seeds(root, 12)))
             countable = gt_countable_seeds(root, 12)
-            row = {"panicle": s, "detector": det, "gt_visible": gt_vis, "gt_countable": int(len(countable)),
-                   "sgbm_s_per_view": float(np.mean(prep.seconds_sgbm)),
+            row = {"panicle": s, "detector": det, "oracle": prep.oracle, "gt_visible": gt_vis,
+                   "gt_countable": int(len(countable)), "sgbm_s_per_view": float(np.mean(prep.seconds_sgbm)),
                    "detections": int(sum(v.n_detections for v in prep.views if v is not None)),
                    "observations": int(sum(len(v.seeds) for v in prep.views if v is not None)),
                    "prepare_cpu_s": time.process_time() - c0, "prepare_wall_s": time.perf_counter() - w0,
@@ -97,38 +151,14 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 m["quality"] = rec.quality
                 m["icp_s_per_view"] = float(np.mean(rec.registration.seconds[1:]))
                 m["reconstruct_s"] = time.perf_counter() - t0
-                origin = rec.poses[rec.obs_view][:, :3, 3]
-                for meth in COUNT_METHODS:
-                    c1 = time.process_time()
-                    n = count_seeds(rec.obs_xyz, rec.obs_view, rec.obs_diam, CountConfig(method=meth),
-                                    origin=origin).count
-                    m[f"count_{meth}_cpu_s"] = time.process_time() - c1
-                    m[f"count_{meth}"] = n
-                    m[f"count_{meth}_ape"] = abs(n - gt_vis) / max(gt_vis, 1) * 100
-                    m[f"count_{meth}_countable_err"] = (n - len(countable)) / max(len(countable), 1) * 100
-                if rec.oracle and mode == "seeds":
-                    m["diagnostics"] = _count_diagnostics(rec, root, countable)
+                obs = {"xyz": rec.obs_xyz, "view": rec.obs_view, "diam": rec.obs_diam, "seed_id": rec.obs_seed_id,
+                       "poses": rec.poses}
+                np.savez_compressed(out / "cache" / f"p{s}_{mode}.npz", **obs)
+                m.update(_count_fields(obs, gt_vis, countable, root, rec.oracle and mode == "seeds"))
                 row["modes"][mode] = m
             (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
             rows.append(row)
-        tune = rows[0]
-        held = rows[1:]
-        summary = summarize_scan_rows(rows, list(modes), (tune["panicle"],))
-        summary["detector"] = det
-        for mode in modes:
-            for meth in COUNT_METHODS:
-                ape = [r["modes"][mode][f"count_{meth}_ape"] for r in held]
-                err = [r["modes"][mode][f"count_{meth}_countable_err"] for r in held]
-                summary["modes"][mode][f"count_{meth}"] = {
-                    "mape_vs_visible": float(np.mean(ape)), "mape_vs_countable": float(np.mean(np.abs(err))),
-                    "mean_signed_pct_vs_countable": float(np.mean(err)),
-                    "per_panicle_pct_vs_countable": {r["panicle"]: round(e, 1) for r, e in zip(held, err)}}
-        # the naive 2D baseline: detections / (detections per seed on the tuning panicle)
-        for ref in ("gt_visible", "gt_countable"):
-            vps = tune["detections"] / max(tune[ref], 1)
-            summary[f"naive_2d_vs_{ref.split('_')[1]}"] = {"views_per_seed": vps, "mape": float(np.mean(
-                [abs(r["detections"] / vps - r[ref]) / r[ref] * 100 for r in held]))}
-        summary["prepare_cpu_s_per_panicle"] = float(np.mean([r["prepare_cpu_s"] for r in rows]))
+        summary = _summarize(rows, modes if not recount else tuple(rows[0]["modes"]), det)
         (out / "summary.json").write_text(json.dumps(summary, indent=1))
         out_all[det] = summary
     return out_all
@@ -139,13 +169,16 @@ def main() -> None:
     ap.add_argument("--eval", type=int, nargs="+", default=None, help="accuracy evaluation on these scan seeds")
     ap.add_argument("--detectors", nargs="+", default=["gt"], help="--eval: detectors to evaluate (gt, fast, ...)")
     ap.add_argument("--modes", nargs="+", default=["fk", "full", "seeds"], help="--eval: registration modes")
+    ap.add_argument("--recount", action="store_true", help="--eval: only re-run the counting on the cached "
+                                                          "observations of an earlier --eval run")
     ap.add_argument("--dataset", type=Path, default=None, help="existing arm scan dataset")
     ap.add_argument("--views", type=int, default=12)
     ap.add_argument("--seed", type=int, default=42)
     ap.add_argument("--out", type=Path, default=Path(__file__).with_name("results") / "bench_recon.json")
     args = ap.parse_args()
     if args.eval:
-        print(json.dumps(run_eval(args.eval, detectors=tuple(args.detectors), modes=tuple(args.modes)), indent=1))
+        print(json.dumps(run_eval(args.eval, detectors=tuple(args.detectors), modes=tuple(args.modes),
+                                         recount=args.recount), indent=1))
         return
 
     from seedmap.recon.config import ReconConfig
