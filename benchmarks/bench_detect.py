@@ -76,13 +76,14 @@ def main() -> None:
     a = ap.parse_args()
 
     from seedmap.detect import make_detector
+    from seedmap.detect.config import FastConfig
 
     rows = []
     for scale in (1.0, 0.5):
         w, h = int(round(1434 * scale)), int(round(1050 * scale))
         img, src = _image(a.dataset, w, h)
         blur_ms = _time(lambda: cv2.GaussianBlur(img, (0, 0), 2.0), a.repeats * 3)
-        det = make_detector("fast", overrides=[f"fast.seed_px={5.0 * scale}"])
+        det = make_detector("fast", overrides=[f"fast.seed_px={FastConfig().seed_px * scale}"])
         ms = _time(lambda: det.detect(img), a.repeats)
         n = len(det.detect(img))
         cpu_ms = _cpu_time_1thread(lambda: det.detect(img), a.repeats)
