@@ -129,3 +129,27 @@ def test_fast_on_simulated_frame(tmp_path):
     dist, _ = cKDTree(det.keypoints).query(inst.center_uv[well])
     assert (dist < 1.5).mean() > 0.6
     assert np.median(dist) < 1.0
+
+
+def test_fast_edge_test_drops_leaf_edges_keeps_seeds():
+    """A bright, noisy leaf edge makes ridge-shaped DoG peaks; the edge test drops them, not the seeds."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    img = np.full((120, 160, 3), 8, np.uint8)
+    # a pale leaf on the left with a slightly wavy edge
+    yy, xx = np.mgrid[:120, :160]
+    leaf = xx < 60 + 3 * np.sin(yy / 9.0)
+    img[leaf] = (190, 185, 120)
+    centres = np.array([[100.0, 20], [130, 40], [110, 70], [140, 95], [95, 100]])
+    for u, v in centres:
+        cv2.circle(img, (int(u), int(v)), 2, (230, 170, 130), -1, cv2.LINE_AA)
+    img = cv2.GaussianBlur(img, (0, 0), 0.6)
+    img = np.clip(img + rng.normal(0, 4, img.shape), 0, 255).astype(np.uint8)
+    near_edge = lambda d: (d.keypoints[:, 0] < 75).sum()  # noqa: E731
+    off = make_detector("fast", overrides=["fast.edge_ratio=0"]).detect(img)
+    on = make_detector("fast").detect(img)
+    assert near_edge(off) >= 5  # the failure the test exists for
+    assert near_edge(on) <= near_edge(off) // 2
+    dist, _ = cKDTree(on.keypoints).query(centres)
+    assert (dist < 1.0).all()

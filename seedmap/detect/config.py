@@ -46,6 +46,9 @@ class FastConfig(ConfigModel):
     max_green_excess: float = 15.0
     #: minimum region area in px at the input resolution
     min_area_px: int = 7
+    #: reject ridge-like peaks (bright leaf / stalk edges): principal-curvature ratio of the DoG at
+    #: the peak must stay below this (SIFT's edge test; 0 = off)
+    edge_ratio: float = 5.0
     ellipse: Literal["moments", "contour"] = "moments"
 
 

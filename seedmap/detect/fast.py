@@ -80,16 +80,17 @@ class FastDetector(Detector):
         # (itself first, so ties keep it); following the pointers to their roots gives the basins
         # of the blob response, i.e. one region per seed, split along the dark rims between seeds
         # integer DoG: break ties by brightness so plateaus still drain to one maximum
-        key = dog.astype(np.int32) * 256 + g1
-        offs = [(0, 0)] + [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
-        ny = [np.clip(ys + dy, 0, h - 1) for dy, _ in offs]
-        nx = [np.clip(xs + dx, 0, w - 1) for _, dx in offs]
-        vals = np.stack([key[a, b] for a, b in zip(ny, nx, strict=True)])
-        best = np.argmax(vals, axis=0)
-        index = np.full((h, w), -1, np.int32)
-        index[ys, xs] = np.arange(m, dtype=np.int32)
+        # (flat indices into a 1-px padded copy: no clipping, one 1-D gather per neighbour)
+        key = cv2.copyMakeBorder(dog.astype(np.int32) * 256 + g1, 1, 1, 1, 1, cv2.BORDER_CONSTANT,
+                                 value=np.iinfo(np.int32).min).ravel()
+        wp = w + 2
+        base = (ys + 1) * wp + (xs + 1)
+        offs = np.array([0] + [dy * wp + dx for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], np.int64)
+        best = np.argmax(np.stack([key[base + o] for o in offs]), axis=0)
+        index = np.full(key.shape, -1, np.int32)
+        index[base] = np.arange(m, dtype=np.int32)
         sel = np.arange(m)
-        parent = index[np.choose(best, ny), np.choose(best, nx)].astype(np.int64)
+        parent = index[base + offs[best]].astype(np.int64)
         parent = np.where(parent < 0, sel, parent)
         for _ in range(32):
             nxt = parent[parent]
@@ -98,6 +99,8 @@ class FastDetector(Detector):
             parent = nxt
         roots = np.flatnonzero(parent == np.arange(m))
         ok_root = (dog[ys[roots], xs[roots]] > c.min_response) & (g1[ys[roots], xs[roots]] > c.min_brightness)
+        if c.edge_ratio > 0:
+            ok_root &= _blob_like(dog, xs[roots], ys[roots], c.edge_ratio)
         roots = roots[ok_root]
         n = len(roots)
         if n == 0:
@@ -149,6 +152,26 @@ class FastDetector(Detector):
             ell[:, 2:4] /= s
             boxes = boxes / s
         return Detections(boxes=boxes, scores=score, ellipses=ell)
+
+
+def _blob_like(dog: np.ndarray, x: np.ndarray, y: np.ndarray, ratio: float) -> np.ndarray:
+    """True where the DoG peak at ``(x, y)`` is a blob, not a ridge along an edge.
+
+    SIFT's edge test on the 2x2 Hessian of the response (finite differences at the peak): a bright
+    leaf or stalk edge gives one large and one small curvature, a seed two similar ones. Keeps peaks
+    with ``tr(H)^2 / det(H) < (r + 1)^2 / r`` and both curvatures negative (a maximum).
+    """
+    h, w = dog.shape
+    xm, xp = np.clip(x - 1, 0, w - 1), np.clip(x + 1, 0, w - 1)
+    ym, yp = np.clip(y - 1, 0, h - 1), np.clip(y + 1, 0, h - 1)
+    d = dog.astype(np.float32)
+    c = d[y, x]
+    dxx = d[y, xp] + d[y, xm] - 2 * c
+    dyy = d[yp, x] + d[ym, x] - 2 * c
+    dxy = (d[yp, xp] - d[yp, xm] - d[ym, xp] + d[ym, xm]) / 4
+    tr = dxx + dyy
+    det = dxx * dyy - dxy * dxy
+    return (det > 0) & (tr < 0) & (tr * tr * ratio < (ratio + 1) ** 2 * det)
 
 
 def _factory(dataset=None, weights=None, config=None) -> FastDetector:
