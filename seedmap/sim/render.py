@@ -830,16 +830,31 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
             offs = (np.arange(n_ss) + 0.5) / n_ss - 0.5
             grid_off = np.array([(du, dv) for dv in offs for du in offs], np.float32)  # (S, 2)
             S = len(grid_off)
-            ps = (pix[idx][None, :, :] + grid_off[:, None, :]).reshape(-1, 2)
+            # a sub-sample whose quadrant neighbours (the pixels it lies towards) all see the centre's
+            # object at a continuous depth sees that object too: it keeps the centre's shading untraced
+            er, ec = np.divmod(idx, W)
+            kp, tp = np.pad(key2, 1, mode="edge"), np.pad(tt, 1, mode="edge")
+            k0, t0 = key[idx], tt.reshape(-1)[idx]
+            agree: dict[tuple[int, int], np.ndarray] = {}
+            need = np.zeros((S, len(idx)), bool)
+            for j, (du, dv) in enumerate(grid_off):
+                sx, sy = int(np.sign(du)), int(np.sign(dv))
+                for nb in {(0, sx), (sy, 0), (sy, sx)} - {(0, 0)}:
+                    if nb not in agree:
+                        kn, tn = kp[er + 1 + nb[0], ec + 1 + nb[1]], tp[er + 1 + nb[0], ec + 1 + nb[1]]
+                        agree[nb] = (kn == k0) & (np.abs(tn - t0) <= 0.05 * np.minimum(tn, t0))
+                    need[j] |= ~agree[nb]
+            sel = np.nonzero(need.reshape(-1))[0]
+            ps = (pix[idx][None, :, :] + grid_off[:, None, :]).reshape(-1, 2)[sel]
             ds = _xf(_unit_dirs(calib, ps), R)
             hs = fs.trace(o, ds, ps, covers)
             ks = _object_key(hs)
-            same = ks == np.tile(key[idx], S)
+            same = ks == np.tile(key[idx], S)[sel]
             sub_rgb = np.tile(rgb[idx], (S, 1))
             diff = np.nonzero(~same)[0]
             if len(diff):
                 sub = _Hits(hs.t[diff], hs.cls[diff], hs.obj[diff], hs.prim[diff], hs.bary[diff], hs.seed[diff])
-                sub_rgb[diff] = _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng, ps[diff], scovers)
+                sub_rgb[sel[diff]] = _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng, ps[diff], scovers)
             rgb[idx] = sub_rgb.reshape(S, len(idx), 3).mean(axis=0)
     return rgb.reshape(H, W, 3), seed_img, depth, h
 
