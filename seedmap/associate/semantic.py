@@ -147,10 +147,10 @@ class SemanticConfig(ConfigModel):
     field_temporal_sigma_px: tuple[float, float] = (2.0, 1.0)
     field_gate_sigma: float = 3.5
     field_weight: float = 20.0
-    field_k: int = 15
+    field_k: int = 25
     field_iters: int = 4
     field_ratio: float = 0.7
-    field_seed_ratio: float = 0.5
+    field_seed_ratio: float = 0.3
 
 
 def full_res_scale(width: int) -> float:
