@@ -14,6 +14,7 @@ vignetting, optical blur, shot + read noise, sRGB gamma, optional motion blur an
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -74,6 +75,15 @@ def _xf(a: np.ndarray, M: np.ndarray, t: np.ndarray | None = None) -> np.ndarray
     if t is not None:
         m[:, 3] = t
     return cv2.transform(a.reshape(-1, 1, 3), m).reshape(-1, 3)
+
+
+_O3D_THREADS = threading.local()
+
+
+def _o3d_threads() -> int:
+    """Threads of one Open3D query: 1 while the two cameras render in parallel threads (the cores are
+    already busy; more threads only add scheduling overhead), else 0 = automatic."""
+    return getattr(_O3D_THREADS, "n", 0)
 
 
 def _rays_tensor(o: np.ndarray, d: np.ndarray):
@@ -453,7 +463,7 @@ class _FrameScene:
         if covers is not None and covers.env is not None:
             env_sel = covers.env.flat() if grid else covers.env.lookup(rc) if rc is not None else None
         if self.env is not None and n and env_sel is None:
-            ans = self.env.cast_rays(_rays_tensor(o, d))
+            ans = self.env.cast_rays(_rays_tensor(o, d), nthreads=_o3d_threads())
             t = ans["t_hit"].numpy()
             prim = ans["primitive_ids"].numpy()
             bary = ans["primitive_uvs"].numpy()
@@ -462,7 +472,8 @@ class _FrameScene:
             prim = np.zeros(n, np.uint32)
             bary = np.zeros((n, 2), np.float32)
             if self.env is not None and env_sel is not None and len(env_sel):
-                ans = self.env.cast_rays(_rays_tensor(o if len(o) == 1 else o[env_sel], d[env_sel]))
+                ans = self.env.cast_rays(_rays_tensor(o if len(o) == 1 else o[env_sel], d[env_sel]),
+                                          nthreads=_o3d_threads())
                 t[env_sel] = ans["t_hit"].numpy()
                 prim[env_sel] = ans["primitive_ids"].numpy()
                 bary[env_sel] = ans["primitive_uvs"].numpy()
@@ -485,7 +496,7 @@ class _FrameScene:
             o_r = _xf(oo, Di[:3, :3], Di[:3, 3])
             d_r = _xf(d[idx], Di[:3, :3])
             bvh = self.bvh[k]
-            ans = bvh.scene.cast_rays(_rays_tensor(o_r, d_r))
+            ans = bvh.scene.cast_rays(_rays_tensor(o_r, d_r), nthreads=_o3d_threads())
             tk = ans["t_hit"].numpy()
             better = tk < t[idx]
             if not better.any():
@@ -519,17 +530,16 @@ class _FrameScene:
             if rc is not None and covers.env is not None:
                 sel = covers.env.lookup(rc)
                 if len(sel):
-                    occ[sel] = self.env.test_occlusions(_rays_tensor(o[sel], v[sel]), tnear=0.0,
-                                                        tfar=tfar).numpy().astype(bool)
+                    occ[sel] = self.env.test_occlusions(_rays_tensor(o[sel], v[sel]), tnear=0.0, tfar=tfar,
+                                                        nthreads=_o3d_threads()).numpy().astype(bool)
             else:
-                occ = self.env.test_occlusions(_rays_tensor(o, v), tnear=0.0, tfar=tfar).numpy().astype(bool)
+                occ = self.env.test_occlusions(_rays_tensor(o, v), tnear=0.0, tfar=tfar,
+                                              nthreads=_o3d_threads()).numpy().astype(bool)
         if self.soil_x is not None:
             occ[self._soil_hits(o, v, np.full(n, tfar, np.float32))[0]] = True
         rem = np.nonzero(~occ)[0]
         if len(rem) == 0 or len(self.active) == 0:
             return occ
-        length = np.sqrt((v[rem] * v[rem]).sum(1))
-        du = v[rem] / np.maximum(length, 1e-12)[:, None]
         if rc is not None:
             rc = (rc[0][rem], rc[1][rem])
             sels = []
@@ -537,14 +547,19 @@ class _FrameScene:
                 cand = cov.lookup(rc)
                 if len(cand):
                     # exact sphere test on the candidates only
-                    oc = self.centers[j] - o[rem[cand]]
-                    bb = _dot(oc, du[cand])
+                    ii = rem[cand]
+                    vv = v[ii]
+                    length = np.sqrt(_dot(vv, vv))
+                    oc = self.centers[j] - o[ii]
+                    bb = _dot(oc, vv) / np.maximum(length, 1e-12)
                     c2 = _dot(oc, oc) - bb * bb
                     r = self.radii[j]
-                    ok = (c2 <= r * r) & (bb + r > 0) & (bb - np.sqrt(np.maximum(r * r - c2, 0)) < length[cand])
+                    ok = (c2 <= r * r) & (bb + r > 0) & (bb - np.sqrt(np.maximum(r * r - c2, 0)) < length)
                     cand = cand[ok]
                 sels.append(cand)
         else:
+            length = np.sqrt(_dot(v[rem], v[rem]))
+            du = v[rem] / np.maximum(length, 1e-12)[:, None]
             sels = self._select(o[rem], du, length, None, None)
         for j, sel in enumerate(sels):
             idx = rem[sel]
@@ -555,8 +570,8 @@ class _FrameScene:
             Di = self.Dinv32[k]
             o_r = _xf(o[idx], Di[:3, :3], Di[:3, 3])
             v_r = _xf(v[idx], Di[:3, :3])
-            occ[idx] = self.bvh[k].scene.test_occlusions(_rays_tensor(o_r, v_r), tnear=0.0,
-                                                          tfar=tfar).numpy().astype(bool)
+            occ[idx] = self.bvh[k].scene.test_occlusions(_rays_tensor(o_r, v_r), tnear=0.0, tfar=tfar,
+                                                          nthreads=_o3d_threads()).numpy().astype(bool)
         return occ
 
 
@@ -976,6 +991,7 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
 
     def one(job):
         name, T, crng = job
+        _O3D_THREADS.n = 1 if cfg.imaging.threads > 1 else 0
         lin, seed_img, depth, _ = _render_camera(fs, T, calib, cfg, crng, light, light_axes)
         img = _develop(lin, calib, cfg, crng, gain, depth, world.cache)
         labels, inst = _instances(fs, seed_img, centers, T, calib)
