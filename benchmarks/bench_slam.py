@@ -50,10 +50,6 @@ def _blob_image(kp: np.ndarray, w: int, h: int, rng: np.random.Generator) -> np.
     return cv2.GaussianBlur(img, (3, 3), 0.8)
 
 
-def _time(fn, reps: int) -> float:
-    return _time2(fn, reps)[0]
-
-
 def _time2(fn, reps: int) -> tuple[float, float]:
     """Best wall and best CPU (process) seconds over ``reps`` runs (the machine is shared)."""
     best, best_cpu = np.inf, np.inf
@@ -88,9 +84,9 @@ def main() -> None:
         if da is not None and db is not None:
             bf.knnMatch(da, db, k=2)
 
-    t_sift = _time(sift_match, reps)
+    t_sift, c_sift = _time2(sift_match, reps)
     res = {"machine": platform.processor() or platform.machine(), "image": [calib.width, calib.height],
-           "baseline_sift_bf_stereo_s": t_sift, "association": []}
+           "baseline_sift_bf_stereo_s": t_sift, "baseline_sift_bf_stereo_cpu_s": c_sift, "association": []}
     for mode in ("none", "consensus", "field"):
         cfg = SemanticConfig(refine=mode, temporal_prediction=mode != "none")
         for n in (500, 1000, 2000):
@@ -107,6 +103,7 @@ def main() -> None:
                    "stereo_cpu_s": c_st, "temporal_cpu_s": c_tm,
                    "stereo_vs_sift_ratio": t_st / t_sift, "association_frames_per_s": 1.0 / (t_st + t_tm),
                    "association_vs_sift_ratio": (t_st + t_tm) / t_sift,
+                   "association_cpu_vs_sift_cpu_ratio": (c_st + c_tm) / c_sift,
                    "stereo_matches": len(st), "temporal_matches": len(tm),
                    "stereo_precision_synthetic": prec, "temporal_precision_synthetic": tprec}
             res["association"].append(row)
