@@ -91,6 +91,10 @@ class CountConfig(ConfigModel):
     sigma_depth: float = Field(0.0015, gt=0, description="rays: position error along the viewing ray (m)")
     gate_chi2: float = Field(9.0, gt=0, description="rays: max squared Mahalanobis distance of a link")
     circular: bool = Field(True, description="views are ordered around a closed circle (lag wraps around)")
+    merge_passes: int = Field(1, ge=0, description="rays: passes of group-level merging (fragments of one seed "
+                                                   "seen from views more than max_lag apart)")
+    merge_chi2: float = Field(9.0, gt=0, description="rays: max squared Mahalanobis distance of two merged groups")
+    merge_radius: float = Field(0.004, gt=0, description="rays: never merge groups farther apart (m)")
     max_pair_distance: float = Field(0.012, gt=0, description="rays: never link observations farther apart (m)")
 
 

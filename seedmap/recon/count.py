@@ -11,7 +11,9 @@ of views up to ``max_lag`` steps apart within ``gate_chi2`` are merged (union-fi
 first -- their rays are nearly parallel, so depth errors hardly matter -- and by increasing distance
 within a lag, under the cannot-link rule below. A group seen from ``min_observations`` distinct
 views is one seed; its position is the information-weighted mean (rays from different directions
-fix the depth).
+fix the depth). A seed hidden for more than ``max_lag`` views in between (seen from two separate
+arcs) gives two groups: ``merge_passes`` passes join counted groups that share no view and whose
+information-weighted positions agree within ``merge_chi2`` (group covariances).
 
 Method ``tracks``: observations of views up to ``max_lag`` steps apart around the circle
 are linked when they are mutual nearest neighbours within ``link_radius``; links are merged
@@ -234,39 +236,84 @@ def count_rays(xyz: np.ndarray, view: np.ndarray, diameter: np.ndarray, origin: 
         # each lag by increasing distance
         order = np.lexsort((m2, lag))
         pairs = pairs[order]
-    parent = np.arange(n)
-    vmask = [1 << int(v) for v in view]  # views present in each group (python ints: any number of views)
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
+    uf = _CannotLinkUnionFind(view)
     for x, y in pairs.tolist():
-        rx, ry = find(x), find(y)
-        if rx == ry or (vmask[rx] & vmask[ry]):
-            continue  # cannot-link: one view sees a seed at most once
-        parent[ry] = rx
-        vmask[rx] |= vmask[ry]
-    roots = np.array([find(i) for i in range(n)])
+        uf.union(x, y)
+    # information matrices: across-ray directions are known precisely, the depth loosely
+    W = np.linalg.inv(cov)
+    Wx = np.einsum("nij,nj->ni", W, xyz)
+    for _ in range(cfg.merge_passes):
+        if not _merge_groups(uf, xyz, W, Wx, cfg):
+            break
+    roots = np.array([uf.find(i) for i in range(n)])
     uniq, comp = np.unique(roots, return_inverse=True)
-    nviews = np.array([bin(vmask[r]).count("1") for r in uniq])
+    nviews = np.array([bin(uf.vmask[r]).count("1") for r in uniq])
     keep = nviews >= cfg.min_observations
     new_index = np.full(len(uniq), -1, np.int64)
     new_index[keep] = np.arange(keep.sum())
-    # information-weighted position: the precise directions across the rays dominate
-    W = np.linalg.inv(cov)
-    Wsum = np.zeros((len(uniq), 3, 3))
-    np.add.at(Wsum, comp, W)
-    b = np.zeros((len(uniq), 3))
-    np.add.at(b, comp, np.einsum("nij,nj->ni", W, xyz))
-    pos = np.linalg.solve(Wsum, b[:, :, None])[:, :, 0]
+    pos, _ = _group_estimates(comp, len(uniq), W, Wx)
     cnt = np.bincount(comp, minlength=len(uniq))
     d2 = np.sum((xyz - pos[comp]) ** 2, axis=1)
     spread = np.sqrt(np.bincount(comp, weights=d2, minlength=len(uniq)) / cnt)
     diam = np.array([np.median(diameter[comp == c]) for c in np.flatnonzero(keep)]) if keep.any() else np.zeros(0)
     return SeedCount(pos[keep], diam, nviews[keep], new_index[comp], spread[keep])
+
+
+class _CannotLinkUnionFind:
+    """Union-find over observations that refuses to join two groups seen by a common view."""
+
+    def __init__(self, view: np.ndarray) -> None:
+        self.parent = np.arange(len(view))
+        self.vmask = [1 << int(v) for v in view]  # views of each group (python ints: any number of views)
+
+    def find(self, i: int) -> int:
+        parent = self.parent
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def union(self, x: int, y: int) -> bool:
+        rx, ry = self.find(x), self.find(y)
+        if rx == ry or (self.vmask[rx] & self.vmask[ry]):
+            return False  # cannot-link: one view sees a seed at most once
+        self.parent[ry] = rx
+        self.vmask[rx] |= self.vmask[ry]
+        return True
+
+
+def _group_estimates(comp: np.ndarray, n_groups: int, W: np.ndarray, Wx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Information-weighted position (G, 3) and its covariance (G, 3, 3) of each group."""
+    Wsum = np.zeros((n_groups, 3, 3))
+    np.add.at(Wsum, comp, W)
+    b = np.zeros((n_groups, 3))
+    np.add.at(b, comp, Wx)
+    C = np.linalg.inv(Wsum)
+    return np.einsum("gij,gj->gi", C, b), C
+
+
+def _merge_groups(uf: _CannotLinkUnionFind, xyz: np.ndarray, W: np.ndarray, Wx: np.ndarray,
+                  cfg: CountConfig) -> bool:
+    """One pass of group-level merging: fragments of one seed seen from views more than ``max_lag``
+    apart (a seed hidden for a few views in between) are joined when their information-weighted
+    positions agree (``merge_chi2``) and they share no view. Returns whether anything merged."""
+    roots = np.array([uf.find(i) for i in range(len(xyz))])
+    uniq, comp = np.unique(roots, return_inverse=True)
+    pos, C = _group_estimates(comp, len(uniq), W, Wx)
+    # only groups that count already: a seed seen from two separate arcs of views
+    nviews = np.array([bin(uf.vmask[r]).count("1") for r in uniq])
+    counted = np.flatnonzero(nviews >= max(cfg.min_observations, 2))
+    pairs = cKDTree(pos[counted]).query_pairs(cfg.merge_radius, output_type="ndarray")
+    if len(pairs) == 0:
+        return False
+    pairs = counted[pairs]
+    d = pos[pairs[:, 0]] - pos[pairs[:, 1]]
+    m2 = np.einsum("pi,pi->p", d, np.linalg.solve(C[pairs[:, 0]] + C[pairs[:, 1]], d[:, :, None])[:, :, 0])
+    ok = m2 <= cfg.merge_chi2
+    merged = False
+    for k in np.flatnonzero(ok)[np.argsort(m2[ok], kind="stable")]:
+        merged |= uf.union(int(uniq[pairs[k, 0]]), int(uniq[pairs[k, 1]]))
+    return merged
 
 
 def naive_2d_count(per_view_counts: np.ndarray, expected_views_per_seed: float) -> float:
