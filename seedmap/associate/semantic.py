@@ -473,9 +473,13 @@ def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray,
 
 
 def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np.ndarray) -> np.ndarray:
-    """Displacement predicted for every keypoint of A: the median of its ``k`` nearest matched
-    neighbours' displacements (its own match excluded, so a keypoint never predicts itself).
-    ``fallback`` (N, 2) where fewer than 3 matches exist."""
+    """Displacement predicted for every keypoint of A from the matches ``m`` (the "seed" matches).
+
+    At each seed match the field is the median displacement of its ``k`` nearest *other* seed
+    matches (its own displacement excluded, so a match never predicts itself); every keypoint of
+    A takes the field of its nearest seed match (the field is smooth at that scale, and this
+    needs one k-NN query over the seeds instead of over all keypoints). ``fallback`` (N, 2)
+    where fewer than 3 matches exist."""
     from scipy.spatial import cKDTree
 
     if len(m) < 3:
@@ -483,17 +487,18 @@ def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np
     pa = ka[m.idx_a]
     disp = kb[m.idx_b] - pa
     kk = min(k + 1, len(m))
-    _, nn = cKDTree(pa).query(ka, kk)
-    nn = np.asarray(nn).reshape(len(ka), kk)
-    own = np.full(len(ka), -1)
-    own[m.idx_a] = np.arange(len(m))
-    is_self = nn == own[:, None]
-    # drop the own match where present, else the farthest neighbour: k neighbours per keypoint
+    tree = cKDTree(pa)
+    _, nn = tree.query(pa, kk)
+    nn = np.asarray(nn).reshape(len(m), kk)
+    own = np.arange(len(m))[:, None]
+    is_self = nn == own
+    # drop the own match (first column unless duplicated positions), else the farthest neighbour
     drop = np.where(is_self.any(1), is_self.argmax(1), kk - 1)
     keep = np.ones_like(nn, bool)
-    keep[np.arange(len(ka)), drop] = False
-    nn = nn[keep].reshape(len(ka), kk - 1)
-    return np.median(disp[nn], axis=1)
+    keep[np.arange(len(m)), drop] = False
+    at_seed = np.median(disp[nn[keep].reshape(len(m), kk - 1)], axis=1)
+    _, near = tree.query(ka, 1)
+    return at_seed[np.asarray(near).reshape(-1)]
 
 
 def second_best(ia: np.ndarray, ib: np.ndarray, c: np.ndarray, m: Matches, n: int, mm: int) -> np.ndarray:
