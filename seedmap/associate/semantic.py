@@ -66,9 +66,10 @@ oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stay
   2. ``field_iters`` refinements: candidates within ``field_gate_sigma`` normalised residuals of
      the field (window shrinking geometrically from ``field_coarse_tol_px`` to the expected
      spread ``field_*_sigma_px``), their *mutual best* pairs by residual that pass a ratio test
-     (``field_seed_ratio``) are the unambiguous "seed" matches, and every keypoint's field becomes
-     the median displacement of its ``field_k`` nearest seed matches (its own match excluded);
-     for rectified stereo the v displacement is fixed to 0 (epipolar rows);
+     (``field_seed_ratio``) are the unambiguous "seed" matches; the field at a seed match is the
+     median displacement of its ``field_k`` nearest other seed matches and every keypoint takes
+     the field of its nearest seed match (:func:`local_field`); for rectified stereo the v
+     displacement is fixed to 0 (epipolar rows);
   3. final assignment of ``paper cost + field_weight * residual^2`` (residual in units of the
      expected spread) with :func:`assign_capped`: unlike the paper's gated Hungarian, which
      first maximises the number of pairs and so forces keypoints without a visible partner onto
