@@ -220,6 +220,35 @@ def train_segmenter_cmd(
     _train_common("segmenter", data, out, val, images_root, config, set_, resume, overwrite)
 
 
+@train_app.command("fast-refiner")
+def train_fast_refiner_cmd(
+    data: Path = typer.Argument(..., help="Simulated dataset folder with GT masks (e.g. data/det_s1)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Refiner weights file (.safetensors) to write."),
+    steps: int = typer.Option(3000, "--steps", help="Training steps (batch 512)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and batches."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing weights file."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Train the fast detector's learned second stage (seed score + box per candidate; torch on CPU, ~1 min)."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.config import load_config
+    from seedmap.detect.config import DetectConfig
+    from seedmap.detect.refine import train_refiner, training_samples
+
+    if out.exists() and not overwrite:
+        raise SeedmapError(f"{out} exists (use --overwrite to replace it)")
+    cfg = load_config(DetectConfig, config, set_ or [])
+    x, y, s = training_samples(data, None, cfg.fast, progress=True)
+    ref = train_refiner(x, y, s, steps=steps, seed=seed)
+    ref.info = {**(ref.info or {}), "data": str(data), "fast_config": cfg.fast.model_dump()}
+    ref.save(out)
+    typer.echo(f"refiner written to {out} ({len(x)} candidates, {s.mean():.0%} seeds; "
+               f"loss {ref.info['loss_first_100']:.3f} -> {ref.info['loss_last_100']:.3f})")
+
+
 @train_app.command("export")
 def train_export_cmd(
     weights: Path = typer.Argument(..., help="Weights folder (detector/segmenter.safetensors) or one such file."),

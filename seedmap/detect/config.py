@@ -49,6 +49,13 @@ class FastConfig(ConfigModel):
     #: reject ridge-like peaks (bright leaf / stalk edges): principal-curvature ratio of the DoG at
     #: the peak must stay below this (SIFT's edge test; 0 = off)
     edge_ratio: float = 5.0
+    #: learned second stage (seedmap.detect.refine): seed score + whole-pixel box per candidate;
+    #: used at work_scale 1 when its weights exist (shipped: trained on the simulated range)
+    refine: bool = True
+    #: refiner weights (.safetensors); None = the shipped seedmap/detect/weights/fast_refiner.safetensors
+    refine_weights: str | None = None
+    #: keep candidates whose refiner seed probability is at least this
+    refine_threshold: float = 0.5
     ellipse: Literal["moments", "contour"] = "moments"
 
 

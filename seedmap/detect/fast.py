@@ -55,15 +55,35 @@ class FastDetector(Detector):
 
     def __init__(self, config: FastConfig | None = None) -> None:
         self.cfg = config or FastConfig()
+        self.refiner = None
+        c = self.cfg
+        if c.refine and c.work_scale == 1.0:
+            from seedmap.detect.refine import Refiner, default_refiner_path
+
+            # the shipped refiner is optional (absent: classical boxes); a named file must exist
+            if c.refine_weights or default_refiner_path().is_file():
+                self.refiner = Refiner.load(c.refine_weights or default_refiner_path())
 
     def detect(self, image: np.ndarray) -> Detections:
+        """Seeds in one RGB image; with the learned refiner (``fast.refine``) its score and boxes."""
+        d, f = self.detect_with_seediness(image)
+        if self.refiner is not None:
+            d = self.refiner.refine(f, d, self.cfg.refine_threshold)
+        return d
+
+    def detect_with_seediness(self, image: np.ndarray) -> tuple[Detections, np.ndarray]:
+        """The classical candidates (no refinement) and the seediness image they came from."""
         img = check_image(image)
         c = self.cfg
         s = float(c.work_scale)
         if s != 1.0:
             img = cv2.resize(img, None, fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        d = c.seed_px * s
         f = seediness(img, c.max_green_excess / 16.0 if c.max_green_excess > 0 else 0.0)
+        return self._detect(f, s), f
+
+    def _detect(self, f: np.ndarray, s: float) -> Detections:
+        c = self.cfg
+        d = c.seed_px * s
         sigma = max(d / (2.0 * np.sqrt(2.0)), 0.7)
         # uint8 blurs take OpenCV's fixed-point SIMD path (2-3x faster than float32)
         g1 = cv2.GaussianBlur(f, (0, 0), sigma * c.dog_inner)

@@ -1,0 +1,212 @@
+"""A tiny learned second stage for the ``fast`` detector: seed/no-seed score and the box, per candidate.
+
+Why: at ~5 px a box 1 px off fails IoU >= 0.5, and the classical region extent is often 1 px off
+(error analysis on ``data/det_s1``: ~15 % of the misses were found seeds with a bad box, and ~50 % of
+the false positives were leaf/stalk edges or over-split seeds). A 2-hidden-layer MLP on an 11x11
+patch of the seediness image around each candidate, plus the region's box and ellipse, predicts
+
+* a logit: is the candidate's keypoint on a real seed (GT instance of >= 6 visible px)?
+* the GT box's four edges relative to the candidate's centre pixel (rounded to whole pixels, the GT
+  box convention: x0, y0 inclusive, x1, y1 exclusive).
+
+The keypoint (ellipse centre) is left unchanged. Inference is numpy only (two small matrix
+products, a few ms per image); training uses torch on CPU in a few minutes
+(``seedmap train fast-refiner data/det_s1 --out FILE``: 144 s CPU on the 26 images of det_s1). Weights are safetensors (numpy arrays + JSON metadata).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from seedmap.errors import InputError
+from seedmap.records import Detections
+
+#: half size of the patch (the patch is (2 R + 1)^2 pixels)
+PATCH_R = 5
+#: box coordinates and axes are divided by this (px) to keep the inputs O(1)
+SCALE_PX = 5.0
+
+
+def default_refiner_path() -> Path:
+    """The shipped refiner (trained on the simulated range ``data/det_s1``, even frames)."""
+    return Path(__file__).with_name("weights") / "fast_refiner.safetensors"
+
+
+def candidate_features(f: np.ndarray, det: Detections, r: int = PATCH_R) -> tuple[np.ndarray, np.ndarray]:
+    """``(features (N, (2r+1)^2 + 9) float32, centre pixel (N, 2) int)`` of the candidates ``det``.
+
+    ``f`` is the uint8 seediness image the detector worked on (same pixel grid as the detections).
+    Features: the patch of ``f / 255`` around the rounded keypoint, the region box relative to that
+    pixel and the ellipse axes (both / 5 px), the ellipse angle as (cos 2a, sin 2a), the DoG score.
+    """
+    n = len(det)
+    c = np.round(det.keypoints).astype(np.int64).reshape(-1, 2)
+    if n == 0:
+        return np.zeros((0, (2 * r + 1) ** 2 + 9), np.float32), c
+    h, w = f.shape
+    c[:, 0] = np.clip(c[:, 0], 0, w - 1)
+    c[:, 1] = np.clip(c[:, 1], 0, h - 1)
+    fp = cv2.copyMakeBorder(f, r, r, r, r, cv2.BORDER_CONSTANT, value=0).ravel()
+    wp = w + 2 * r
+    idx = np.arange(-r, r + 1)
+    offs = (idx[:, None] * wp + idx[None, :]).ravel()
+    base = (c[:, 1] + r) * wp + (c[:, 0] + r)
+    patch = fp[base[:, None] + offs[None, :]].astype(np.float32) / 255.0
+    rb = (np.asarray(det.boxes, np.float64) - np.c_[c, c]) / SCALE_PX
+    e = np.asarray(det.ellipses, np.float64)
+    a = np.radians(2.0 * e[:, 4])
+    x = np.c_[patch, rb, e[:, 2:4] / SCALE_PX, np.cos(a), np.sin(a), np.asarray(det.scores, np.float64)]
+    return x.astype(np.float32), c
+
+
+@dataclass
+class Refiner:
+    """MLP weights (``w0 b0 w1 b1 w2 b2``; ``x @ w + b``, ReLU between) and the patch radius."""
+
+    layers: list[tuple[np.ndarray, np.ndarray]]
+    patch_r: int = PATCH_R
+    info: dict | None = None
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """``(N, 5)``: 4 box-edge offsets (/ 5 px, relative to the region box) and the seed logit."""
+        for k, (w, b) in enumerate(self.layers):
+            x = x @ w + b
+            if k < len(self.layers) - 1:
+                np.maximum(x, 0.0, out=x)
+        return x
+
+    def refine(self, f: np.ndarray, det: Detections, threshold: float = 0.5) -> Detections:
+        """Candidates with seed probability >= ``threshold``, with the predicted whole-pixel boxes."""
+        if len(det) == 0:
+            return det
+        x, c = candidate_features(f, det, self.patch_r)
+        o = self.forward(x)
+        n_patch = (2 * self.patch_r + 1) ** 2
+        box = np.round((o[:, :4] + x[:, n_patch:n_patch + 4]) * SCALE_PX) + np.c_[c, c]
+        box[:, 2] = np.maximum(box[:, 2], box[:, 0] + 1)
+        box[:, 3] = np.maximum(box[:, 3], box[:, 1] + 1)
+        # logit >= log(t / (1 - t))  <=>  sigmoid >= t
+        t = min(max(threshold, 1e-6), 1 - 1e-6)
+        keep = o[:, 4] >= np.log(t / (1 - t))
+        p = 1.0 / (1.0 + np.exp(-o[keep, 4].astype(np.float64)))
+        return Detections(boxes=box[keep], scores=p.astype(np.float32), ellipses=np.asarray(det.ellipses)[keep])
+
+    def save(self, path: str | Path) -> Path:
+        from safetensors.numpy import save
+
+        from seedmap.io.atomic import atomic_write_bytes
+
+        t = {}
+        for k, (w, b) in enumerate(self.layers):
+            t[f"w{k}"] = np.ascontiguousarray(w, np.float32)
+            t[f"b{k}"] = np.ascontiguousarray(b, np.float32)
+        meta = {"seedmap_kind": "fast_refiner", "patch_r": str(self.patch_r), "info": json.dumps(self.info or {})}
+        atomic_write_bytes(Path(path), save(t, metadata=meta))
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> Refiner:
+        from safetensors import SafetensorError, safe_open
+
+        p = Path(path)
+        if not p.is_file():
+            raise InputError("fast refiner weights not found", p)
+        try:
+            with safe_open(str(p), framework="numpy") as fh:
+                meta = dict(fh.metadata() or {})
+                t = {k: fh.get_tensor(k) for k in fh.keys()}
+        except (SafetensorError, OSError, ValueError) as e:
+            raise InputError(f"not a readable safetensors file ({str(e).splitlines()[0][:100]})", p) from None
+        if meta.get("seedmap_kind") != "fast_refiner":
+            raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected fast_refiner", p)
+        n = len([k for k in t if k.startswith("w")])
+        layers = [(t[f"w{k}"].astype(np.float32), t[f"b{k}"].astype(np.float32)) for k in range(n)]
+        return cls(layers, int(meta.get("patch_r", PATCH_R)), json.loads(meta.get("info", "{}")))
+
+
+def training_samples(dataset: str | Path, frames: list[int] | None, config=None, min_gt_area: int = 6,
+                     progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(features, target box offsets (N, 4) / 5 px, is_seed (N,))`` from a simulated dataset's GT.
+
+    Candidates are the classical detector's (refinement off); a candidate is a seed when its
+    keypoint pixel lies in a GT instance mask of >= ``min_gt_area`` pixels, and its target box is
+    that instance's box.
+    """
+    from seedmap.detect.config import FastConfig
+    from seedmap.detect.fast import FastDetector
+    from seedmap.io.images import read_rgb
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = SeedmapDataset(dataset)
+    if not ds.has_gt:
+        raise InputError("dataset has no ground truth (gt/instances/) to train on", dataset)
+    cfg = (config or FastConfig()).model_copy(update={"refine": False})
+    det = FastDetector(cfg)
+    items = [(i, cam) for i in (frames if frames is not None else range(len(ds))) for cam in ("left", "right")]
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(items, desc="refiner samples", unit="img")
+    xs, ys, ss = [], [], []
+    for i, cam in items:
+        img = read_rgb(ds.image_path(i, cam))
+        inst = ds.gt_instances(i, cam)
+        lab = ds.gt_label_image(i, cam).astype(np.int64)
+        d, f = det.detect_with_seediness(img)
+        x, c = candidate_features(f, d)
+        lut = np.full(int(max(lab.max(), inst.label.max(initial=0))) + 1, -1, np.int64)
+        lut[inst.label.astype(np.int64)] = np.arange(len(inst))
+        g = lut[lab[c[:, 1], c[:, 0]]]
+        pos = g >= 0
+        pos[pos] &= inst.area[g[pos]] >= min_gt_area
+        y = np.zeros((len(d), 4), np.float32)
+        y[pos] = (inst.boxes[g[pos]] - np.c_[c[pos], c[pos]]) / SCALE_PX
+        xs.append(x)
+        ys.append(y)
+        ss.append(pos)
+    return np.concatenate(xs), np.concatenate(ys), np.concatenate(ss)
+
+
+def train_refiner(x: np.ndarray, y: np.ndarray, is_seed: np.ndarray, steps: int = 3000, hidden: tuple = (96, 64),
+                  lr: float = 2e-3, batch: int = 512, seed: int = 0) -> Refiner:
+    """Fit the MLP (torch, CPU): BCE on ``is_seed`` + smooth-L1 on the seeds' box offsets."""
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    torch.manual_seed(seed)
+    dims = [x.shape[1], *hidden, 5]
+    mods: list = []
+    for k in range(len(dims) - 1):
+        mods.append(torch.nn.Linear(dims[k], dims[k + 1]))
+        if k < len(dims) - 2:
+            mods.append(torch.nn.ReLU())
+    net = torch.nn.Sequential(*mods)
+    opt = torch.optim.Adam(net.parameters(), lr)
+    X = torch.from_numpy(np.ascontiguousarray(x, np.float32))
+    Y = torch.from_numpy(np.ascontiguousarray(y, np.float32))
+    S = torch.from_numpy(np.asarray(is_seed, bool))
+    n_patch = x.shape[1] - 9
+    rb = X[:, n_patch:n_patch + 4]
+    losses = []
+    for _ in range(steps):
+        b = torch.randint(0, len(X), (min(batch, len(X)),), generator=g)
+        o = net(X[b])
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(o[:, 4], S[b].float())
+        m = S[b]
+        if m.any():
+            loss = loss + torch.nn.functional.smooth_l1_loss(o[m, :4] + rb[b][m], Y[b][m], beta=0.1)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    lin = [m for m in net if isinstance(m, torch.nn.Linear)]
+    layers = [(m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy()) for m in lin]
+    r = int(round((np.sqrt(n_patch) - 1) / 2))
+    return Refiner(layers, r, {"steps": steps, "samples": int(len(X)), "seed_fraction": float(S.float().mean()),
+                               "loss_first_100": float(np.mean(losses[:100])),
+                               "loss_last_100": float(np.mean(losses[-100:]))})
