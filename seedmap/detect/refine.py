@@ -74,8 +74,11 @@ class Refiner:
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """``(N, 5)``: 4 box-edge offsets (/ 5 px, relative to the region box) and the seed logit."""
+        # cv2.gemm, not numpy's BLAS: a multi-threaded BLAS spends 4x the CPU time of this small
+        # product spinning its threads on a busy 2-core machine (measured: 8 vs 2 ms per image)
+        x = np.ascontiguousarray(x, np.float32)
         for k, (w, b) in enumerate(self.layers):
-            x = x @ w + b
+            x = cv2.gemm(x, w, 1.0, None, 0.0) + b if len(x) else np.zeros((0, w.shape[1]), np.float32)
             if k < len(self.layers) - 1:
                 np.maximum(x, 0.0, out=x)
         return x
