@@ -310,7 +310,7 @@ class _FrameScene:
                           [x0, SOIL_HALF_WIDTH, 0]], float)
             add(v, np.array([[0, 1, 2], [0, 2, 3]]), np.tile([0, 0, 1.0], (4, 1)),
                 np.tile(world.soil_color, (4, 1)), np.zeros((4, 2)), CLS_SOIL)
-        self.n_soil = len(F) and len(F[0])
+        self.n_soil = len(F[0]) if world.has_soil else 0  # the soil's triangles come first
         margin = max(float(np.linalg.norm(light - T[:3, 3])) for T in cams) + world.cfg.imaging.flash_radius + 0.01
 
         def in_view(c: np.ndarray, r: np.ndarray) -> np.ndarray:
