@@ -3,8 +3,10 @@
 Why ray casting: one primary ray per pixel centre gives exact instance labels (which seed is seen at
 pixel ``[r, c]``, i.e. at ``(u=c, v=r)``) and the same rays give the image; the wind is rigid per
 panicle, so every panicle keeps one BVH built once at rest and rays are moved into its rest frame
-instead of rebuilding the scene each frame. Leaves, stalks and soil are few triangles and are
-rebuilt per frame.
+instead of rebuilding the scene each frame. Stalks and swayed leaves are rebuilt per frame, but only
+those within reach of the cameras and their flash shadows; the soil is a plane intersected
+analytically. Each camera traces a panicle / the env only at the pixels their projected proxies
+cover (``_FrameScene.covers``), so the cost per frame does not grow with the range length.
 
 Lighting: a single flash on the rig (a small disc, so shadows are soft), inverse-square fall-off,
 an extra fade to black beyond ``imaging.light_cutoff`` (flash imaging: the far background is dark),
