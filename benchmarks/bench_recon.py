@@ -10,6 +10,7 @@ Usage: ``python benchmarks/bench_recon.py [--dataset DIR | --views N --seed S]``
 and seeds (``--modes``), with each detector of ``--detectors`` (default gt), counts seeds with every
 count method, and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench/DETECTOR/``.
 The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left out of the means).
+Copies of the summaries of the last reported run: ``benchmarks/results/bench_recon_eval_{gt,fast}.json``.
 """
 
 from __future__ import annotations
