@@ -39,7 +39,7 @@ class FastConfig(ConfigModel):
     #: a pixel belongs to a seed region when its DoG response exceeds this (grey levels)
     region_min: float = -12.0
     #: minimum blob (DoG) response of a seed, in grey levels
-    min_response: float = 13.0
+    min_response: float = 9.0
     #: a seed's smoothed brightness must exceed this (grey levels; flash imaging: dark far field)
     min_brightness: float = 70.0
     #: leaf suppression: f -= (max_green_excess / 16) * max(G - R, 0)
@@ -48,7 +48,7 @@ class FastConfig(ConfigModel):
     min_area_px: int = 7
     #: reject ridge-like peaks (bright leaf / stalk edges): principal-curvature ratio of the DoG at
     #: the peak must stay below this (SIFT's edge test; 0 = off)
-    edge_ratio: float = 5.0
+    edge_ratio: float = 8.0
     #: learned second stage (seedmap.detect.refine): seed score + whole-pixel box per candidate;
     #: used at work_scale 1 when its weights exist (shipped: trained on the simulated range)
     refine: bool = True
