@@ -121,7 +121,8 @@ def trajectory_figure(trajectories: Mapping[str, Trajectory]):
     ax1.set_ylabel("distance travelled (m)")
     for ax in (ax0, ax1):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:  # no trajectory at all (e.g. lost at the first frame)
+            ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
 
