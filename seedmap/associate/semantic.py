@@ -345,12 +345,8 @@ def consensus_assign(ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndar
     n, m = len(ka), len(kb)
     if len(ia) == 0:
         return Matches()
-    a1, b1 = _best_per_row(ia, ib, cost)
-    b2, a2 = _best_per_row(ib, ia, cost)
-    best_a = np.full(m, -1)
-    best_a[b2] = a2
-    mutual = best_a[b1] == a1
-    ma, mb = a1[mutual], b1[mutual]
+    mm = _mutual_best(ia, ib, cost, n, m)
+    ma, mb = mm.idx_a, mm.idx_b
     tol = cfg.consensus_tol_px / scale
     out = Matches()
     for _ in range(max(1, cfg.consensus_iters)):
