@@ -15,18 +15,6 @@ import numpy as np
 import pytest
 
 
-@pytest.fixture(scope="module")
-def rendered_range(tmp_path_factory):
-    from seedmap.config import load_config
-    from seedmap.sim import simulate_range
-    from seedmap.sim.config import SimConfig
-
-    out = tmp_path_factory.mktemp("sim") / "r"
-    cfg = load_config(SimConfig, None, ["world.length=0.4", "camera.scale=0.2", "seed=5"])
-    simulate_range(cfg, out, overwrite=False, progress=False)
-    return out
-
-
 def _blank_copy(src, dst, frames: set[int]):
     """Copy the dataset and blank ``frames`` (images black, GT masks empty, no GT instances)."""
     shutil.copytree(src, dst)
@@ -45,21 +33,21 @@ def _blank_copy(src, dst, frames: set[int]):
 
 
 @pytest.mark.slow
-def test_untouched_rendered_range_is_tracked_to_the_end(rendered_range, tmp_path):
+def test_untouched_tiny_range_is_tracked_to_the_end(tiny_range, tmp_path):
     """The reference for the next test: without blanks nothing is lost, so a lost frame there is
     caused by the blanks."""
     from seedmap.slam.pipeline import run_slam
 
-    ref = run_slam(rendered_range, tmp_path / "ref", matcher="seeds", detector="gt", progress=False)
+    ref = run_slam(tiny_range, tmp_path / "ref", matcher="seeds", detector="gt", progress=False)
     assert ref.metrics.lost_frame is None, ref.metrics.lost_reason
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("blank", [{4, 5}, {7}])
-def test_blank_rendered_frames_are_lost_at_the_right_frame(rendered_range, tmp_path, blank):
+def test_blank_rendered_frames_are_lost_at_the_right_frame(tiny_range, tmp_path, blank):
     from seedmap.slam.pipeline import run_slam
 
-    data = _blank_copy(rendered_range, tmp_path / "blanked", blank)
+    data = _blank_copy(tiny_range, tmp_path / "blanked", blank)
     res = run_slam(data, tmp_path / "res", matcher="seeds", detector="gt", progress=False)
     m = res.metrics
     assert m.lost_frame == min(blank), (m.lost_frame, m.lost_reason)

@@ -10,18 +10,6 @@ import pytest
 from seedmap.errors import SeedmapError
 
 
-@pytest.fixture(scope="module")
-def tiny_range(tmp_path_factory):
-    from seedmap.config import load_config
-    from seedmap.sim import simulate_range
-    from seedmap.sim.config import SimConfig
-
-    out = tmp_path_factory.mktemp("sim") / "r"
-    cfg = load_config(SimConfig, None, ["world.length=0.4", "camera.scale=0.2", "seed=5"])
-    simulate_range(cfg, out, overwrite=False, progress=False)
-    return out
-
-
 @pytest.mark.slow
 def test_run_slam_on_a_simulated_range(tiny_range, tmp_path):
     from seedmap.slam.config import SlamConfig

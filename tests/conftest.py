@@ -1,0 +1,20 @@
+"""Fixtures shared by several test files."""
+
+from __future__ import annotations
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def tiny_range(tmp_path_factory):
+    """A 0.4 m simulated range at camera scale 0.2 (819x600 px, 11 frames), seed 5, rendered once per run.
+
+    Tests that modify it must work on a copy."""
+    from seedmap.config import load_config
+    from seedmap.sim import simulate_range
+    from seedmap.sim.config import SimConfig
+
+    out = tmp_path_factory.mktemp("sim") / "r"
+    cfg = load_config(SimConfig, None, ["world.length=0.4", "camera.scale=0.2", "seed=5"])
+    simulate_range(cfg, out, overwrite=False, progress=False)
+    return out
