@@ -33,11 +33,19 @@ def read_rgb(path: str | Path) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+#: zlib strategy for colour images: camera images carry sensor noise, so LZ77 string matching finds
+#: almost nothing; Huffman-only coding gives the same size (±1 %) with ~35 % less encode and ~15 % less
+#: decode CPU (measured on a 1434x1050 simulated frame: 110 → 70 ms encode, 41 → 34 ms decode).
+_PNG_RGB_PARAMS = [cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY]
+
+
 def encode_png(img: np.ndarray) -> bytes:
-    """PNG bytes of an RGB uint8 image or a single-channel uint8/uint16 array."""
+    """Lossless PNG bytes of an RGB uint8 image or a single-channel uint8/uint16 array."""
+    params: list[int] = []
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_RGB2BGR)
-    ok, buf = cv2.imencode(".png", img)
+        params = _PNG_RGB_PARAMS
+    ok, buf = cv2.imencode(".png", img, params)
     if not ok:
         raise RuntimeError("PNG encoding failed")
     return buf.tobytes()
