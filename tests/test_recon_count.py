@@ -70,7 +70,7 @@ def test_rays_without_camera_centres_is_an_error_and_empty_input_counts_zero():
     centres, xyz, view, _ = ring_scan(np.random.default_rng(1), 0.0001, 0.0005)
     with pytest.raises(ValueError, match="origin"):
         count_seeds(xyz, view, np.full(len(xyz), 0.004), CountConfig(method="rays"))
-    assert count_seeds(np.zeros((0, 3)), np.zeros(0), np.zeros(0), CountConfig(), origin=np.zeros((0, 3))).count == 0
+    assert count_seeds(np.zeros((0, 3)), np.zeros(0), np.zeros(0), CountConfig(method="rays"), origin=np.zeros((0, 3))).count == 0
 
 
 def test_rays_depth_outliers_do_not_create_seeds():
@@ -114,6 +114,7 @@ def test_recount_with_rays_reads_the_poses_of_the_results_folder(tmp_path):
         poses[v, :3, 3] = origin[view == v][0]
     write_tum(tmp_path / "poses_tum.txt", Trajectory(np.arange(VIEWS, dtype=float), poses))
     cfg = ReconConfig()
+    cfg.count.method = "rays"
     direct = count_seeds(xyz, view, np.full(len(xyz), 0.004), cfg.count, origin=origin).count
     assert recount(tmp_path, cfg).count == direct
     (tmp_path / "poses_tum.txt").unlink()
@@ -133,7 +134,7 @@ def test_merging_joins_a_seed_seen_from_two_separate_arcs_of_views():
     xyz, view, origin = xyz[keep], view[keep], origin[keep]
     d = np.full(len(xyz), 0.004)
     n_seen = len(centres)
-    split = count_seeds(xyz, view, d, CountConfig(merge_passes=0), origin=origin).count
-    merged = count_seeds(xyz, view, d, CountConfig(merge_passes=1), origin=origin).count
+    split = count_seeds(xyz, view, d, CountConfig(method="rays", merge_passes=0), origin=origin).count
+    merged = count_seeds(xyz, view, d, CountConfig(method="rays", merge_passes=1), origin=origin).count
     assert split - n_seen >= 10  # measured: 420 of 400
     assert abs(merged - n_seen) <= 4

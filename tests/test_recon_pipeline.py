@@ -162,10 +162,10 @@ def test_counting_deduplicates_a_synthetic_cluster_set():
     cnt2 = count_seeds(np.vstack([xyz, [[0.1, 0.1, 0.1]]]), np.append(view, 0), np.append(d, 0.004),
                        CountConfig(method="density"))
     assert cnt2.count == cnt.count
-    # the default (rays) assumes stereo-like errors (small across the ray, ~1.5 mm along it); on this
+    # rays assumes stereo-like errors (small across the ray, ~1.5 mm along it); on this
     # isotropic 0.35 mm scatter it still counts within 10 %, and the stray observation is no seed
-    r = count_seeds(xyz, view, d, CountConfig(), origin=origin)
-    r2 = count_seeds(np.vstack([xyz, [[0.1, 0.1, 0.1]]]), np.append(view, 0), np.append(d, 0.004), CountConfig(),
+    r = count_seeds(xyz, view, d, CountConfig(method="rays"), origin=origin)
+    r2 = count_seeds(np.vstack([xyz, [[0.1, 0.1, 0.1]]]), np.append(view, 0), np.append(d, 0.004), CountConfig(method="rays"),
                      origin=np.vstack([origin, [[0.3, 0.0, 0.02]]]))
     assert r2.count == r.count and abs(r.count - 300) <= 30
     assert count_seeds(np.zeros((0, 3)), np.zeros(0), np.zeros(0), CountConfig(method="density")).count == 0

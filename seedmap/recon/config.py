@@ -79,7 +79,9 @@ class RegisterConfig(ConfigModel):
 class CountConfig(ConfigModel):
     """De-duplication of seed detections in 3D (see seedmap.recon.count for the methods)."""
 
-    method: Literal["rays", "tracks", "density"] = Field("rays", description="chosen on the tuning panicle (seed 100)")
+    method: Literal["multiview", "rays", "tracks", "density"] = Field(
+        "multiview", description="multiview = 2D association + triangulation (needs the detections and poses); "
+                                 "rays / tracks / density de-duplicate per-view 3D seed centres")
     link_radius: float = Field(0.0025, gt=0, description="tracks: max 3D distance of a cross-view link (m)")
     max_lag: int = Field(3, ge=1, description="tracks, rays: link views up to this many steps apart (around the circle)")
     dbscan_eps: float = Field(0.004, gt=0, description="DBSCAN neighbourhood (m): separates seed groups/outliers")
@@ -96,6 +98,18 @@ class CountConfig(ConfigModel):
     merge_chi2: float = Field(9.0, gt=0, description="rays: max squared Mahalanobis distance of two merged groups")
     merge_radius: float = Field(0.004, gt=0, description="rays: never merge groups farther apart (m)")
     max_pair_distance: float = Field(0.012, gt=0, description="rays: never link observations farther apart (m)")
+    mv_verify_views: int = Field(2, ge=1, description="multiview: views on each side that verify a stereo match")
+    mv_stereo_dv_px: float = Field(2.0, gt=0, description="multiview: max row difference of a left/right match (px)")
+    mv_support_sigma_px: float = Field(1.0, gt=0, description="multiview: reprojection scale of the support score (px)")
+    mv_min_support: float = Field(1.5, ge=0, description="multiview: min support of a stereo match (sum over the "
+                                                         "verifying images, each <= 1)")
+    mv_link_px: float = Field(2.0, gt=0, description="multiview: max reprojection error of a cross-view link (px)")
+    mv_max_reproj_px: float = Field(2.5, gt=0, description="multiview: observations reprojecting farther from "
+                                                           "their track's point are dropped (px)")
+    mv_dedupe: float = Field(0.9, ge=0, description="multiview: join counted tracks closer than this many median "
+                                                    "seed diameters that share no view")
+    mv_min_depth: float = Field(0.2, gt=0, description="multiview: nearest seed depth considered (m)")
+    mv_max_depth: float = Field(0.42, gt=0, description="multiview: farthest seed depth considered (m)")
 
 
 class ReconConfig(ConfigModel):

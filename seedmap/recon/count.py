@@ -1,9 +1,35 @@
-"""Counting seeds by de-duplicating per-view detections in 3D.
+"""Counting seeds: multi-view association of 2D detections (default), or de-duplication of
+per-view 3D seed centres.
+
+Method ``multiview`` (default): counts from the 2D detections of every view (left AND right
+image) and the registered camera poses; no per-detection SGBM depth is used (SGBM depth is missing
+for many seed-sized patches and has heavy tails, which made ghost and missing seeds).
+
+1. **Stereo matches, verified by the neighbours.** In view k every left keypoint may pair with any
+   right keypoint on the same row (``mv_stereo_dv_px``) whose disparity lies in the depth range
+   (rectified pair: the epipolar line is the row). Each candidate pair triangulates to one 3D
+   point; it is projected into the left and right images of the ``mv_verify_views`` views on
+   each side (registered poses) and scores sum exp(-e^2 / 2 sigma^2) over those images, e = distance
+   (px) to the nearest detection there (``mv_support_sigma_px``). A true match is confirmed by
+   most neighbouring images, a wrong disparity lands on background or a random seed. One-to-one
+   matches: ``scipy.optimize.linear_sum_assignment`` maximising the support, pairs with support
+   >= ``mv_min_support`` kept.
+2. **Cross-view links.** A stereo match a of view k and b of view k+lag (lag 1..``max_lag``) are
+   linked when a's 3D point projects within ``mv_link_px`` of b's left AND right keypoints and
+   b's point onto a's (symmetric epipolar/reprojection test; each b keeps its cheapest a). Links
+   are merged nearest views first, cheapest first (union-find) under the cannot-link rule: one
+   view contributes at most one detection to a track.
+3. **Triangulation.** Each track is triangulated from all its rays (left and right camera of
+   every view; linear least squares, the point closest to all rays); observations reprojecting
+   farther than ``mv_max_reproj_px`` are dropped from their track and it is re-triangulated.
+4. **Count.** Tracks supported by >= ``min_observations`` views, after a 3D de-duplication that
+   joins tracks closer than ``mv_dedupe`` x the median seed diameter and sharing no view
+   (fragments of one seed, e.g. seen from two arcs of views with a gap between).
 
 Every view contributes one 3D centre per detected seed (in the registered world frame), so a seed
 seen from ``n`` views appears as a tight cloud of ``n`` observations.
 
-Method ``rays`` (default): a per-view seed centre is precise ACROSS its viewing ray (keypoint,
+Method ``rays`` (session-2 default): a per-view seed centre is precise ACROSS its viewing ray (keypoint,
 ~0.2 mm at 0.3 m) but not ALONG it (stereo depth of a 3 mm seed: ~1 mm core, a long tail), so two
 observations are compared by the Mahalanobis distance under covariances elongated along their rays
 (``sigma_lateral`` across, ``sigma_depth`` along, needs each observation's camera centre). Pairs
@@ -22,7 +48,7 @@ groups that share a view are never merged (this is what keeps touching seeds ~4 
 separate even where a few bad centres scatter by several mm). A group supported by at least
 ``min_observations`` distinct views is one seed.
 
-Method ``density`` (default; DBSCAN, density smoothing, local maxima):
+Method ``density`` (session-1 default; DBSCAN, density smoothing, local maxima):
 
 1. **DBSCAN** (Open3D ``cluster_dbscan``, ``eps`` ~ one seed diameter) splits the observations into
    spatially separate groups and marks isolated observations as noise (kept as singleton groups;
@@ -79,6 +105,9 @@ def count_seeds(xyz: np.ndarray, view: np.ndarray, diameter: np.ndarray, cfg: Co
     observed ``diameter`` (m)) into one entry per physical seed (methods in the module docstring).
     ``origin`` (N, 3) m: the camera centre each observation was seen from (method ``rays`` needs it:
     the depth along that ray is far less certain than the position across it)."""
+    if cfg.method == "multiview":
+        raise ValueError("count method 'multiview' counts 2D detections: use count_multiview (the 3D methods "
+                         "here are rays, tracks and density)")
     if cfg.method == "rays":
         if origin is None:
             raise ValueError("count method 'rays' needs the camera centre of every observation (origin)")
@@ -319,3 +348,298 @@ def _merge_groups(uf: _CannotLinkUnionFind, xyz: np.ndarray, W: np.ndarray, Wx: 
 def naive_2d_count(per_view_counts: np.ndarray, expected_views_per_seed: float) -> float:
     """The 2D baseline: total detections over all views divided by how many views see a seed."""
     return float(np.sum(per_view_counts) / max(expected_views_per_seed, 1e-9))
+
+
+# ------------------------------------------------------------------------------------------------
+# method ``multiview``: 2D association across views + triangulation (module docstring)
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class StereoKeypoints:
+    """The 2D seed detections of one stereo view: ``left`` (N, 2) and ``right`` (M, 2) keypoints
+    (px, rectified images) and ``left_size`` (N,) the mean full ellipse axis of each left detection
+    (px; gives the seed diameter once the depth is known)."""
+
+    left: np.ndarray
+    right: np.ndarray
+    left_size: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.left = np.asarray(self.left, float).reshape(-1, 2)
+        self.right = np.asarray(self.right, float).reshape(-1, 2)
+        self.left_size = np.asarray(self.left_size, float).reshape(-1)
+        if len(self.left_size) != len(self.left):
+            raise ValueError(f"StereoKeypoints: {len(self.left_size)} sizes for {len(self.left)} left keypoints")
+
+    @classmethod
+    def from_detections(cls, left, right) -> StereoKeypoints:
+        """From the left and right :class:`seedmap.records.Detections` of a view."""
+        return cls(left.keypoints, right.keypoints, 0.5 * (left.ellipses[:, 2] + left.ellipses[:, 3]))
+
+
+@dataclass
+class MultiViewDetail:
+    """Intermediate results of :func:`count_multiview` (diagnostics and tests): every stereo match
+    (view, left index, right index, support) and the track it ended in (index into ``xyz``,
+    -1 = dropped for its reprojection error)."""
+
+    view: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    support: np.ndarray
+    track: np.ndarray
+    xyz: np.ndarray  # (T, 3) triangulated point of every track (m, world)
+    track_views: np.ndarray  # (T,) distinct views of every track
+
+
+def _project_world(calib, T_cam_world: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points (N, 3) m -> left pixels (N, 2) and right columns (N,) of one view."""
+    return calib.project(X @ T_cam_world[:3, :3].T + T_cam_world[:3, 3])
+
+
+def _stereo_candidates(L: np.ndarray, R: np.ndarray, d_lo: float, d_hi: float, dv: float) -> np.ndarray:
+    """(P, 2) index pairs (left, right) on the same row (within ``dv`` px) with a disparity in
+    [``d_lo``, ``d_hi``] px: one Chebyshev-ball query, rows scaled so both tolerances are one radius."""
+    if len(L) == 0 or len(R) == 0:
+        return np.zeros((0, 2), np.int64)
+    half = 0.5 * (d_hi - d_lo)
+    s = half / dv
+    a = np.column_stack([L[:, 0] - 0.5 * (d_hi + d_lo), L[:, 1] * s])
+    b = np.column_stack([R[:, 0], R[:, 1] * s])
+    m = cKDTree(a).sparse_distance_matrix(cKDTree(b), half, p=np.inf, output_type="ndarray")
+    if len(m) == 0:
+        return np.zeros((0, 2), np.int64)
+    return np.column_stack([m["i"], m["j"]]).astype(np.int64)
+
+
+def _nearest(tree: cKDTree | None, uv: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (inf = none within ``r`` px) and index (-1) of the nearest keypoint of ``tree``."""
+    d = np.full(len(uv), np.inf)
+    j = np.full(len(uv), -1, np.int64)
+    ok = np.all(np.isfinite(uv), axis=1)
+    if tree is not None and tree.n and ok.any():
+        dd, jj = tree.query(uv[ok], distance_upper_bound=r)
+        hit = np.isfinite(dd)
+        idx = np.flatnonzero(ok)[hit]
+        d[idx], j[idx] = dd[hit], jj[hit]
+    return d, j
+
+
+def _neighbour_views(k: int, V: int, max_off: int, circular: bool, both_sides: bool) -> list[tuple[int, int]]:
+    """(lag, view) of the views up to ``max_off`` steps after (and before, ``both_sides``) view k."""
+    out = []
+    for off in range(1, max_off + 1):
+        for m in ((k + off, k - off) if both_sides else (k + off,)):
+            if circular:
+                m %= V
+            if 0 <= m < V and m != k and (off, m) not in out and all(m != x for _, x in out):
+                out.append((off, m))
+    return out
+
+
+def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw: np.ndarray, calib,
+                    cfg: CountConfig) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Step 1 (module docstring): per view, one-to-one left/right matches verified by the
+    neighbouring views -> (left idx, right idx, world point (m), support) per view."""
+    from scipy.optimize import linear_sum_assignment
+
+    V = len(views)
+    trees = [(cKDTree(v.left), cKDTree(v.right)) if v is not None else (None, None) for v in views]
+    d_lo = calib.fx * calib.baseline / cfg.mv_max_depth
+    d_hi = calib.fx * calib.baseline / cfg.mv_min_depth
+    sig = cfg.mv_support_sigma_px
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+    out = []
+    for k, kp in enumerate(views):
+        if kp is None:
+            out.append(empty)
+            continue
+        c = _stereo_candidates(kp.left, kp.right, d_lo, d_hi, cfg.mv_stereo_dv_px)
+        if len(c) == 0:
+            out.append(empty)
+            continue
+        Xw = calib.triangulate(kp.left[c[:, 0]], kp.right[c[:, 1], 0]) @ poses[k][:3, :3].T + poses[k][:3, 3]
+        support = np.zeros(len(c))
+        for _, m in _neighbour_views(k, V, cfg.mv_verify_views, cfg.circular, both_sides=True):
+            if views[m] is None:
+                continue
+            uvl, ur = _project_world(calib, Tcw[m], Xw)
+            dl, _ = _nearest(trees[m][0], uvl, 3 * sig)
+            dr, _ = _nearest(trees[m][1], np.column_stack([ur, uvl[:, 1]]), 3 * sig)
+            support += np.exp(-0.5 * (dl / sig) ** 2) + np.exp(-0.5 * (dr / sig) ** 2)
+        ok = support >= cfg.mv_min_support
+        c, Xw, support = c[ok], Xw[ok], support[ok]
+        if len(c) == 0:
+            out.append(empty)
+            continue
+        # one-to-one, maximal total support: assignment on the candidate rows/columns only
+        rows, ri = np.unique(c[:, 0], return_inverse=True)
+        cols, ci = np.unique(c[:, 1], return_inverse=True)
+        gain = np.zeros((len(rows), len(cols)))
+        gain[ri, ci] = support
+        a, b = linear_sum_assignment(gain, maximize=True)
+        pick = np.full((len(rows), len(cols)), -1, np.int64)
+        pick[ri, ci] = np.arange(len(c))
+        q = pick[a, b]
+        q = np.sort(q[q >= 0])
+        out.append((c[q, 0], c[q, 1], Xw[q], support[q]))
+    return out
+
+
+def _rays(calib, poses: np.ndarray, view: np.ndarray, u: np.ndarray, v: np.ndarray,
+          right: bool) -> tuple[np.ndarray, np.ndarray]:
+    """World camera centres (N, 3) and unit ray directions (N, 3) of pixels (u, v) of the left or
+    right camera of each observation's view."""
+    R = poses[view][:, :3, :3]
+    c = poses[view][:, :3, 3] + (R[:, :, 0] * calib.baseline if right else 0.0)
+    d = np.einsum("nij,nj->ni", R, np.column_stack([(u - calib.cx) / calib.fx, (v - calib.cy) / calib.fy,
+                                                     np.ones(len(u))]))
+    return c, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def triangulate_rays(group: np.ndarray, n_groups: int, centres: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Linear least-squares triangulation: for each group the point (m) minimising the summed
+    squared distances to its rays (camera centre ``centres``, unit direction ``dirs``), i.e. the
+    solution of sum (I - d d^T)(X - c) = 0. NaN for groups whose rays are (nearly) parallel."""
+    P = np.eye(3)[None] - dirs[:, :, None] * dirs[:, None, :]
+    A = np.zeros((n_groups, 3, 3))
+    b = np.zeros((n_groups, 3))
+    np.add.at(A, group, P)
+    np.add.at(b, group, np.einsum("nij,nj->ni", P, centres))
+    X = np.full((n_groups, 3), np.nan)
+    ok = np.linalg.cond(A) < 1e8 if n_groups else np.zeros(0, bool)
+    if ok.any():
+        X[ok] = np.linalg.solve(A[ok], b[ok][:, :, None])[:, :, 0]
+    return X
+
+
+def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, calib, cfg: CountConfig,
+                    detail: bool = False) -> SeedCount | tuple[SeedCount, MultiViewDetail]:
+    """The ``multiview`` method (module docstring): count seeds from the 2D detections ``views``
+    (one :class:`StereoKeypoints` per view, None = skipped view), the registered camera poses
+    ``poses`` (V, 4, 4) T_world_cam of the left cameras (m) and the rectified ``calib``.
+
+    Returns a :class:`SeedCount` whose ``assignment`` indexes the LEFT detections of all views
+    concatenated in view order (-1 = not counted); ``spread`` is the RMS distance (m) of a seed's
+    per-view stereo points to its triangulated position. ``detail=True`` also returns the stereo
+    matches and tracks (:class:`MultiViewDetail`)."""
+    poses = np.asarray(poses, float).reshape(-1, 4, 4)
+    V = len(views)
+    if len(poses) != V:
+        raise ValueError(f"{len(poses)} poses for {V} views")
+    from seedmap.geometry import invert
+
+    Tcw = invert(poses)
+    n_left = np.array([len(v.left) if v is not None else 0 for v in views], np.int64)
+    offset = np.concatenate([[0], np.cumsum(n_left)])
+    st = _stereo_matches(views, poses, Tcw, calib, cfg)
+    view = np.concatenate([np.full(len(s[0]), k, np.int64) for k, s in enumerate(st)]) if V else np.zeros(0, np.int64)
+    il = np.concatenate([s[0] for s in st]) if V else np.zeros(0, np.int64)
+    ir = np.concatenate([s[1] for s in st]) if V else np.zeros(0, np.int64)
+    X = np.concatenate([s[2] for s in st]) if V else np.zeros((0, 3))
+    support = np.concatenate([s[3] for s in st]) if V else np.zeros(0)
+    n = len(view)
+    empty = SeedCount(np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.full(offset[-1], -1, np.int64),
+                      np.zeros(0))
+    if n == 0:
+        det = MultiViewDetail(view, il, ir, support, np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64))
+        return (empty, det) if detail else empty
+    uvL = np.zeros((n, 2))
+    uR = np.zeros(n)
+    size = np.zeros(n)
+    for k in np.unique(view):
+        sel = view == k
+        uvL[sel] = views[k].left[il[sel]]
+        uR[sel] = views[k].right[ir[sel], 0]
+        size[sel] = views[k].left_size[il[sel]]
+    # step 2: symmetric reprojection links between views up to max_lag apart
+    by_view = {int(k): np.flatnonzero(view == k) for k in np.unique(view)}
+    trees = {k: cKDTree(uvL[i]) for k, i in by_view.items()}
+    lnk = cfg.mv_link_px
+    edges = []
+    for k, A in by_view.items():
+        for lag, m in _neighbour_views(k, V, cfg.max_lag, cfg.circular, both_sides=False):
+            if m not in by_view:
+                continue
+            pl, pr = _project_world(calib, Tcw[m], X[A])
+            dl, j = _nearest(trees[m], pl, lnk)
+            hit = np.flatnonzero(j >= 0)
+            a, b = A[hit], by_view[m][j[hit]]
+            e_r = np.abs(pr[hit] - uR[b])
+            ql, qr = _project_world(calib, Tcw[k], X[b])
+            e_bl = np.linalg.norm(ql - uvL[a], axis=1)
+            e_br = np.abs(qr - uR[a])
+            ok = (e_r <= lnk) & (e_bl <= lnk) & (e_br <= lnk)
+            a, b = a[ok], b[ok]
+            cost = (dl[hit][ok] + e_r[ok] + e_bl[ok] + e_br[ok]) / 4.0
+            o = np.lexsort((cost, b))  # each b keeps its cheapest a
+            first = np.ones(len(o), bool)
+            first[1:] = b[o][1:] != b[o][:-1]
+            o = o[first]
+            edges.append(np.column_stack([np.full(len(o), lag), cost[o], a[o], b[o]]))
+    E = np.concatenate(edges) if edges else np.zeros((0, 4))
+    E = E[np.lexsort((E[:, 1], E[:, 0]))]
+    uf = _CannotLinkUnionFind(view)
+    for a, b in E[:, 2:].astype(np.int64).tolist():
+        uf.union(a, b)
+    roots = np.array([uf.find(i) for i in range(n)])
+    # step 3: triangulate every track from the rays of all its left and right keypoints
+    cL, dL = _rays(calib, poses, view, uvL[:, 0], uvL[:, 1], right=False)
+    cR, dR = _rays(calib, poses, view, uR, uvL[:, 1], right=True)
+    C2, D2 = np.concatenate([cL, cR]), np.concatenate([dL, dR])
+    keep = np.ones(n, bool)
+    for _ in range(3):
+        _, comp = np.unique(np.where(keep, roots, -1 - np.arange(n)), return_inverse=True)
+        G = int(comp.max()) + 1
+        Xg = triangulate_rays(np.concatenate([comp, comp]), G, C2, D2)
+        err = np.full(n, np.inf)
+        for k, idx in by_view.items():
+            pl, pr = _project_world(calib, Tcw[k], Xg[comp[idx]])
+            err[idx] = np.maximum(np.linalg.norm(pl - uvL[idx], axis=1), np.abs(pr - uR[idx]))
+        bad = keep & ~(err <= cfg.mv_max_reproj_px)
+        if not bad.any():
+            break
+        keep &= ~bad
+    _, comp = np.unique(np.where(keep, roots, -1 - np.arange(n)), return_inverse=True)
+    G = int(comp.max()) + 1
+    Xg = triangulate_rays(np.concatenate([comp, comp]), G, C2, D2)
+    # per-observation depth -> seed diameter (m)
+    z = np.einsum("nj,nj->n", Tcw[view][:, 2, :3], X) + Tcw[view][:, 2, 3]
+    diam = size * z / calib.fx
+    # step 4: 3D de-duplication of counted tracks (fragments of one seed share no view)
+    vm = [0] * G
+    for k, g in zip(view.tolist(), comp.tolist()):
+        vm[g] |= 1 << k
+    nv = np.array([bin(m).count("1") for m in vm])
+    counted = np.flatnonzero((nv >= cfg.min_observations) & np.all(np.isfinite(Xg), axis=1))
+    uf2 = _CannotLinkUnionFind(np.zeros(G, np.int64))
+    uf2.vmask = vm
+    radius = cfg.mv_dedupe * float(np.median(diam))
+    if radius > 0 and len(counted) > 1:
+        pairs = cKDTree(Xg[counted]).query_pairs(radius, output_type="ndarray")
+        if len(pairs):
+            dd = np.linalg.norm(Xg[counted[pairs[:, 0]]] - Xg[counted[pairs[:, 1]]], axis=1)
+            for p, q in counted[pairs[np.argsort(dd, kind="stable")]].tolist():
+                uf2.union(p, q)
+    _, track = np.unique(np.array([uf2.find(g) for g in range(G)])[comp], return_inverse=True)
+    T = int(track.max()) + 1
+    Xt = triangulate_rays(np.concatenate([track, track]), T, C2, D2)
+    key = np.unique(track * V + view)
+    tv = np.bincount(key // V, minlength=T)
+    ok_t = (tv >= cfg.min_observations) & np.all(np.isfinite(Xt), axis=1)
+    new_index = np.full(T, -1, np.int64)
+    new_index[ok_t] = np.arange(ok_t.sum())
+    obs_seed = new_index[track]
+    assignment = np.full(offset[-1], -1, np.int64)
+    assignment[offset[view] + il] = obs_seed
+    cnt_obs = np.bincount(track, minlength=T)
+    d2 = np.sum((X - Xt[track]) ** 2, axis=1)
+    spread = np.sqrt(np.bincount(track, weights=d2, minlength=T) / np.maximum(cnt_obs, 1))
+    order = np.argsort(track, kind="stable")
+    bounds = np.searchsorted(track[order], np.arange(T + 1))
+    dmed = np.array([np.median(diam[order[bounds[t]:bounds[t + 1]]]) for t in np.flatnonzero(ok_t)])
+    res = SeedCount(Xt[ok_t], dmed.reshape(-1), tv[ok_t], assignment, spread[ok_t])
+    if detail:
+        return res, MultiViewDetail(view, il, ir, support, np.where(keep, track, -1), Xt, tv)
+    return res

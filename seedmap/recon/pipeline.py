@@ -3,7 +3,7 @@
 ``prepare_scan`` does the per-view work once (SGBM, clouds, detections, 3D seed centres);
 ``reconstruct`` registers the views in one mode, merges the cloud and counts seeds;
 ``write_results`` writes the results folder (config.yaml, metrics.json, cloud.ply, seeds.csv,
-observations.csv, poses_tum.txt, poses_fk_tum.txt, report.md).
+observations.csv, detections.csv, calib.yaml, poses_tum.txt, poses_fk_tum.txt, report.md).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from seedmap.errors import InputError
 from seedmap.geometry import transform_points
 from seedmap.io.atomic import atomic_output_dir, atomic_write_text
 from seedmap.recon.config import ReconConfig
-from seedmap.recon.count import SeedCount, count_seeds
+from seedmap.recon.count import SeedCount, StereoKeypoints, count_multiview, count_seeds
 from seedmap.recon.register import RegistrationResult, ViewGeometry, estimate_normals, register_views, voxel_down
 from seedmap.recon.stereo import (
     SeedObservations,
@@ -68,6 +68,7 @@ class PreparedView:
     seeds: SeedObservations
     geometry: ViewGeometry
     n_detections: int
+    keypoints: StereoKeypoints | None = None  # the view's 2D detections (count method ``multiview``)
 
 
 @dataclass
@@ -143,7 +144,7 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         # seed ICP uses the measured front-surface points of the seeds: seen from neighbouring views
         # they are nearly the same points, while the radius push-back adds view-dependent errors
         geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.surface_xyz)
-        views.append(PreparedView(vc, so, geo, len(sdet.left)))
+        views.append(PreparedView(vc, so, geo, len(sdet.left), StereoKeypoints.from_detections(sdet.left, sdet.right)))
     if bar is not None:
         bar.close()
     if all(v is None for v in views):
@@ -171,6 +172,8 @@ class Reconstruction:
     skipped: list[dict]
     oracle: bool
     seconds: dict = field(default_factory=dict)
+    keypoints: list[StereoKeypoints | None] | None = None  # per view 2D detections (multiview counting)
+    calib: StereoCalib | None = None
 
 
 def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) -> Reconstruction:
@@ -197,8 +200,12 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
     cat = (lambda a, shape: np.concatenate(a) if a else np.zeros(shape))
     obs_xyz, obs_view = cat(ox, (0, 3)), cat(ov, (0,)).astype(np.int64)
     obs_diam, obs_id, obs_det = cat(od, (0,)), cat(oid, (0,)).astype(np.int64), cat(odet, (0,)).astype(np.int64)
+    kps = [v.keypoints if v is not None else None for v in prep.views]
     t0 = time.perf_counter()
-    cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count, origin=reg.poses[obs_view][:, :3, 3])
+    if cfg.count.method == "multiview":
+        cnt = multiview_count_observations(kps, reg.poses, prep.calib, cfg, obs_view, obs_det)
+    else:
+        cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count, origin=reg.poses[obs_view][:, :3, 3])
     t_count = time.perf_counter() - t0
     # merged cloud; per-point label = counted seed of the detection the pixel belonged to
     px, pc, pl = [], [], []
@@ -230,9 +237,64 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
         mode=cfg.registration.mode, poses=reg.poses, T_fk=prep.T_fk, timestamps=prep.timestamps, registration=reg,
         cloud_xyz=cxyz, cloud_rgb=crgb, cloud_label=clab, obs_xyz=obs_xyz, obs_view=obs_view, obs_diam=obs_diam,
         obs_seed_id=obs_id, count=cnt, quality=q, skipped=prep.skipped, oracle=prep.oracle,
+        keypoints=kps, calib=prep.calib,
         seconds={"registration_total": t_reg, "count": t_count,
                  "sgbm_per_view": float(np.mean(prep.seconds_sgbm)),
                  "icp_per_view": float(np.mean(reg.seconds[1:])) if len(reg.seconds) > 1 else 0.0})
+
+
+def multiview_count_observations(kps: list[StereoKeypoints | None], poses: np.ndarray, calib: StereoCalib,
+                                 cfg: ReconConfig, obs_view: np.ndarray, obs_det: np.ndarray) -> SeedCount:
+    """Count method ``multiview`` on the views' 2D detections; the returned ``assignment`` is given
+    per stereo seed observation (``obs_view``, ``obs_det`` = view and left detection index), like the
+    3D methods' (it labels the merged cloud and observations.csv)."""
+    cnt = count_multiview(kps, poses, calib, cfg.count)
+    offset = np.concatenate([[0], np.cumsum([len(k.left) if k is not None else 0 for k in kps])]).astype(np.int64)
+    obs_view = np.asarray(obs_view, np.int64)
+    obs_det = np.asarray(obs_det, np.int64)
+    cnt.assignment = cnt.assignment[offset[obs_view] + obs_det] if len(obs_view) else np.zeros(0, np.int64)
+    return cnt
+
+
+def detections_csv_text(kps: list[StereoKeypoints | None]) -> str:
+    """All 2D detections of a reconstruction: view, side (0 = left, 1 = right), u, v (px), size (px;
+    mean full ellipse axis, left only, else 0) -- what ``seedmap count`` needs for ``multiview``."""
+    rows = []
+    for k, kp in enumerate(kps):
+        if kp is None:
+            continue
+        rows.append(np.column_stack([np.full(len(kp.left), k), np.zeros(len(kp.left)), kp.left, kp.left_size]))
+        rows.append(np.column_stack([np.full(len(kp.right), k), np.ones(len(kp.right)), kp.right,
+                                     np.zeros(len(kp.right))]))
+    a = np.concatenate(rows) if rows else np.zeros((0, 5))
+    return _csv("view,side,u,v,size_px", a, "%.6g")
+
+
+def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints | None]:
+    """``detections.csv`` of a results folder -> per-view :class:`StereoKeypoints` (None = no row)."""
+    p = Path(results) / "detections.csv"
+    if not p.is_file():
+        raise InputError("detections.csv not found (count method 'multiview' needs the 2D detections; "
+                         "re-run `seedmap reconstruct`)", p)
+    try:
+        a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError:
+        raise InputError("detections.csv is malformed", p) from None
+    if a.size and a.shape[1] < 5:
+        raise InputError(f"detections.csv needs 5 columns, found {a.shape[1]}", p)
+    a = a.reshape(-1, 5)
+    view = a[:, 0].astype(np.int64)
+    if len(view) and (view.min() < 0 or view.max() >= n_views):
+        raise InputError(f"detections.csv refers to view {view.max()}, the poses have {n_views}", p)
+    out: list[StereoKeypoints | None] = []
+    for k in range(n_views):
+        sel = view == k
+        if not sel.any():
+            out.append(None)
+            continue
+        left, right = sel & (a[:, 1] == 0), sel & (a[:, 1] == 1)
+        out.append(StereoKeypoints(a[left, 2:4], a[right, 2:4], a[left, 4]))
+    return out
 
 
 # ------------------------------------------------------------------------------------------------
@@ -274,6 +336,12 @@ def write_results(rec: Reconstruction, out: Path, cfg: ReconConfig, metrics: dic
             if len(rec.obs_xyz) else np.zeros((0, 7))
         atomic_write_text(tmp / "observations.csv",
                           _csv("view,x,y,z,diameter_m,gt_seed_id,seed", obs, "%.7g"))
+        if rec.keypoints is not None:
+            atomic_write_text(tmp / "detections.csv", detections_csv_text(rec.keypoints))
+        if rec.calib is not None:
+            from seedmap.io.calibration import save_calib_yaml
+
+            save_calib_yaml(rec.calib, tmp / "calib.yaml")
         write_tum(tmp / "poses_tum.txt", Trajectory(rec.timestamps, rec.poses))
         write_tum(tmp / "poses_fk_tum.txt", Trajectory(rec.timestamps, rec.T_fk))
         atomic_write_text(tmp / "metrics.json", json.dumps(metrics, indent=2, default=_jsonable))
@@ -437,10 +505,25 @@ def read_observations(results: str | Path) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
-    """``seedmap count``: de-duplicate the stored per-view seed observations again with ``cfg.count``
-    (camera centres for the ``rays`` method from the folder's ``poses_tum.txt``)."""
+    """``seedmap count``: count the stored detections again with ``cfg.count``: method ``multiview``
+    from ``detections.csv``, ``calib.yaml`` and ``poses_tum.txt``; the 3D methods de-duplicate the
+    per-view seed observations of ``observations.csv`` (camera centres for ``rays`` from the poses).
+    The ``multiview`` assignment is per left detection of detections.csv (view order)."""
     xyz, view, diam = read_observations(results)
     origin = None
+    if cfg.count.method == "multiview":
+        from seedmap.io.seedmap_dataset import read_calib_yaml
+        from seedmap.io.trajectory import read_tum
+
+        p = Path(results) / "poses_tum.txt"
+        if not p.is_file():
+            raise InputError("poses_tum.txt not found (count method 'multiview' needs the camera poses)", p)
+        poses = read_tum(p).poses
+        c = Path(results) / "calib.yaml"
+        if not c.is_file():
+            raise InputError("calib.yaml not found (count method 'multiview' needs the calibration)", c)
+        calib = read_calib_yaml(c)
+        return count_multiview(read_detections(results, len(poses)), poses, calib, cfg.count)
     if cfg.count.method == "rays":
         from seedmap.io.trajectory import read_tum
 

@@ -1,0 +1,140 @@
+"""Seed counting by multi-view 2D association and triangulation (count method ``multiview``) on
+synthetic geometry: known seed centres on a cylinder, a 24-view circular stereo scan, keypoints
+projected with noise, dropouts and clutter -> the count of seeds seen in two or more views."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seedmap.geometry import invert
+from seedmap.recon.config import CountConfig, ReconConfig
+from seedmap.recon.count import StereoKeypoints, count_multiview, count_seeds, triangulate_rays
+from seedmap.records import StereoCalib
+
+CALIB = StereoCalib(fx=645.75, fy=644.5, cx=502.875, cy=381.05, baseline=0.11, width=1024, height=750)
+VIEWS = 24
+SEED_D = 0.004
+
+
+def look_at_axis(angle: float, radius: float = 0.3, height: float = 0.03) -> np.ndarray:
+    """T_world_cam of a camera on a circle around the z axis, looking at the axis (y down = -z)."""
+    c = np.array([radius * np.cos(angle), radius * np.sin(angle), height])
+    z = -np.array([np.cos(angle), np.sin(angle), 0.0])
+    y = np.array([0.0, 0.0, -1.0])
+    x = np.cross(y, z)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, y, z])
+    T[:3, 3] = c
+    return T
+
+
+def cylinder_seeds(rows: int = 15, per_row: int = 22, radius: float = 0.0135):
+    """Touching 4 mm seeds on a cylinder around z (staggered rows): centres and outward normals."""
+    k = np.arange(rows * per_row)
+    z = SEED_D * 0.9 * (k // per_row)
+    phi = (k % per_row + 0.5 * (k // per_row % 2)) * (2 * np.pi / per_row)
+    centres = np.column_stack([radius * np.cos(phi), radius * np.sin(phi), z])
+    return centres, np.column_stack([np.cos(phi), np.sin(phi), np.zeros(len(k))])
+
+
+def scan(rng: np.random.Generator, noise_px: float = 0.3, drop: float = 0.1, clutter: float = 0.0,
+         hidden_views: tuple[int, ...] = ()):
+    """Per-view StereoKeypoints (true ids kept aside), poses, and the ids seen in left+right of >= 2 views."""
+    centres, normals = cylinder_seeds()
+    poses = np.stack([look_at_axis(2 * np.pi * v / VIEWS) for v in range(VIEWS)])
+    views, ids_l, ids_r, seen_count = [], [], [], np.zeros(len(centres), int)
+    for v in range(VIEWS):
+        Tcw = invert(poses[v])
+        cam = poses[v][:3, 3]
+        ray = cam - centres
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        vis = np.sum(normals * ray, axis=1) > 0.3
+        pc = centres @ Tcw[:3, :3].T + Tcw[:3, 3]
+        uv, ur = CALIB.project(pc)
+        keep_l = vis & (rng.random(len(centres)) > drop)
+        keep_r = vis & (rng.random(len(centres)) > drop)
+        if v in hidden_views:
+            keep_l[:] = keep_r[:] = False
+        il, ir = np.flatnonzero(keep_l), np.flatnonzero(keep_r)
+        left = uv[il] + rng.normal(0, noise_px, (len(il), 2))
+        right = np.column_stack([ur[ir], uv[ir, 1]]) + rng.normal(0, noise_px, (len(ir), 2))
+        n_fake = int(clutter * len(il))
+        if n_fake:  # false detections inside the panicle's image region
+            lo, hi = left.min(axis=0), left.max(axis=0)
+            left = np.vstack([left, lo + rng.random((n_fake, 2)) * (hi - lo)])
+            right = np.vstack([right, lo - [237, 0] + rng.random((n_fake, 2)) * (hi - lo)])
+            il = np.concatenate([il, np.full(n_fake, -1)])
+            ir = np.concatenate([ir, np.full(n_fake, -2)])
+        size = SEED_D * CALIB.fx / np.maximum(np.concatenate([pc[il[il >= 0], 2], np.full(n_fake, 0.3)]), 1e-6)
+        views.append(StereoKeypoints(left, right, size))
+        ids_l.append(il)
+        ids_r.append(ir)
+        seen_count[np.intersect1d(np.flatnonzero(keep_l), np.flatnonzero(keep_r))] += 1
+    scan.ids_r = ids_r  # true ids of the right keypoints (checked by one test)
+    return views, poses, ids_l, np.flatnonzero(seen_count >= 2), centres
+
+
+def test_triangulate_rays_recovers_a_point_from_two_cameras():
+    X = np.array([0.01, -0.02, 0.3])
+    c = np.array([[0.0, 0, 0], [0.11, 0, 0], [0.2, 0.05, 0.1]])
+    d = X - c
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    np.testing.assert_allclose(triangulate_rays(np.zeros(3, np.int64), 1, c, d)[0], X, atol=1e-12)
+    # parallel rays have no solution: NaN, not a made-up point
+    assert np.isnan(triangulate_rays(np.zeros(2, np.int64), 1, c[:2], np.repeat(d[:1], 2, 0))[0]).all()
+
+
+def test_multiview_counts_seeds_from_noisy_keypoints_with_dropouts():
+    views, poses, ids_l, countable, centres = scan(np.random.default_rng(0))
+    cnt, det = count_multiview(views, poses, CALIB, CountConfig(), detail=True)
+    assert abs(cnt.count - len(countable)) <= 0.02 * len(countable), (cnt.count, len(countable))
+    # counted positions are the true centres (sub-millimetre), diameters from the keypoint sizes
+    d, _ = __import__("scipy.spatial", fromlist=["cKDTree"]).cKDTree(centres).query(cnt.xyz)
+    assert np.median(d) < 0.0003
+    assert abs(np.median(cnt.diameter) - SEED_D) < 0.0003
+    # the assignment indexes the concatenated left detections; one view gives a seed at most once
+    lid = np.concatenate(ids_l)
+    assert len(cnt.assignment) == len(lid)
+    a = cnt.assignment
+    pure = [np.unique(lid[a == s]).size == 1 for s in range(cnt.count)]
+    assert np.mean(pure) > 0.98
+    assert np.all(det.support[det.track >= 0] >= CountConfig().mv_min_support)
+
+
+def test_multiview_joins_a_seed_seen_from_two_arcs_and_ignores_unconfirmed_clutter():
+    rng = np.random.default_rng(1)
+    views, poses, _, countable, _ = scan(rng, hidden_views=(4, 5, 6, 7), clutter=0.05)
+    cnt = count_multiview(views, poses, CALIB, CountConfig())
+    assert abs(cnt.count - len(countable)) <= 0.03 * len(countable), (cnt.count, len(countable))
+    # without the 3D de-duplication the fragments on both sides of the gap count twice
+    split = count_multiview(views, poses, CALIB, CountConfig(mv_dedupe=0.0)).count
+    assert split > cnt.count
+
+
+def test_stereo_matches_are_chosen_by_the_neighbouring_views():
+    # every left keypoint has several right candidates on its row (disparity range 169-355 px, seeds
+    # 8 px apart); the support of the neighbouring views picks the true one
+    views, poses, ids_l, _, _ = scan(np.random.default_rng(2), drop=0.0)
+    ids_r = scan.ids_r
+    d_lo, d_hi = CALIB.fx * CALIB.baseline / 0.42, CALIB.fx * CALIB.baseline / 0.2
+    k = views[0]
+    dd = k.left[:, None, 0] - k.right[None, :, 0]
+    cands = (np.abs(k.left[:, None, 1] - k.right[None, :, 1]) <= 2) & (dd >= d_lo) & (dd <= d_hi)
+    assert np.mean(cands.sum(axis=1)) > 3
+    _, det = count_multiview(views, poses, CALIB, CountConfig(), detail=True)
+    true_l = np.array([ids_l[v][i] for v, i in zip(det.view, det.left)])
+    true_r = np.array([ids_r[v][i] for v, i in zip(det.view, det.right)])
+    assert np.mean(true_l == true_r) > 0.97
+
+
+def test_multiview_edge_cases_and_the_3d_entry_point():
+    views, poses, _, _, _ = scan(np.random.default_rng(3))
+    empty = [StereoKeypoints(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)) for _ in range(VIEWS)]
+    assert count_multiview(empty, poses, CALIB, CountConfig()).count == 0
+    assert count_multiview([None] * VIEWS, poses, CALIB, CountConfig()).count == 0
+    with pytest.raises(ValueError, match="poses"):
+        count_multiview(views, poses[:3], CALIB, CountConfig())
+    with pytest.raises(ValueError, match="count_multiview"):
+        count_seeds(np.zeros((1, 3)), np.zeros(1), np.ones(1), CountConfig(method="multiview"))
+    assert ReconConfig().count.method == "multiview"
