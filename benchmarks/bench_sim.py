@@ -3,7 +3,8 @@
 For each range length (default 1.5 m and 5.0 m, the paper's longest ranges are ~5 m) it builds the
 world, renders one warm-up pair (builds the first panicle BVHs) and then ``--frames`` consecutive
 pairs from the middle of the range, and reports CPU and wall seconds per stereo pair
-(``render_stereo``), world build time and peak memory. The render cost should not depend on the
+(``render_stereo``), the same for pairs at the start of the range, the PNG encoding CPU a written
+pair adds (both images and label masks), world build time and peak memory. The render cost should not depend on the
 range length (only the geometry near the camera is traced): ``ratio_long_vs_short`` ~ 1.
 
 Baseline measured in the same run, so numbers from loaded machines compare: one bare Open3D
@@ -41,18 +42,39 @@ def _bench_range(length: float, seed: int, scale: float, n: int) -> dict:
     t_world, c_world = time.perf_counter() - t0, time.process_time() - c0
     traj = range_trajectory(cfg, rt)
     frame_ss = fseeds.spawn(len(traj))
+    from seedmap.io.images import encode_png
+
     mid = len(traj) // 2
     frames = list(range(max(0, mid - 1), min(len(traj), mid + n)))
     wall, cpu = [], []
+
+    def render(i: int):
+        return render_stereo(world, traj.poses[i], calib, cfg, np.random.default_rng(frame_ss[i]),
+                             float(traj.timestamps[i]))
+
     for k, i in enumerate(frames):
         t0, c0 = time.perf_counter(), time.process_time()
-        render_stereo(world, traj.poses[i], calib, cfg, np.random.default_rng(frame_ss[i]), float(traj.timestamps[i]))
+        r = render(i)
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         if k == 0:
             first = (dt, dc)
         else:
             wall.append(dt)
             cpu.append(dc)
+    # what the dataset writer adds per pair: PNG encoding of both images and both label masks
+    c0 = time.process_time()
+    for img in (r.left, r.right, r.left_labels, r.right_labels):
+        encode_png(img)
+    png_cpu = time.process_time() - c0
+    # frames at the start of the range (panicles entering the view; BVHs of the first panicles built
+    # by the first of them, which is not counted)
+    start = list(range(0, min(len(traj), n + 1)))
+    start_cpu = []
+    for k, i in enumerate(start):
+        c0 = time.process_time()
+        render(i)
+        if k:
+            start_cpu.append(time.process_time() - c0)
     # baseline: one bare cast of a full image against the frame's env BVH
     i = frames[-1]
     T = traj.poses[i]
@@ -83,6 +105,11 @@ def _bench_range(length: float, seed: int, scale: float, n: int) -> dict:
         "first_pair_cpu_s": round(first[1], 3),
         "cpu_s_per_pair_median": round(per_cpu, 3),
         "cpu_s_per_pair_all": [round(c, 3) for c in cpu],
+        "start_frames_measured": start[1:],
+        "start_cpu_s_per_pair_median": round(float(np.median(start_cpu)), 3) if start_cpu else None,
+        "start_cpu_s_per_pair_all": [round(c, 3) for c in start_cpu],
+        "png_encode_cpu_s_per_pair": round(png_cpu, 3),
+        "cpu_s_per_pair_with_png": round(per_cpu + png_cpu, 3),
         "wall_s_per_pair_median": round(per_wall, 3),
         "bare_env_cast_cpu_s_one_image": round(bare_cpu, 4),
         "ratio_cpu_pair_vs_bare_cast": round(per_cpu / bare_cpu, 2) if bare_cpu > 0 else None,

@@ -450,12 +450,14 @@ class _FrameScene:
 
     # ---- queries ----
     def trace(self, o: np.ndarray, d: np.ndarray, pix: np.ndarray | None = None,
-              covers: _CamCovers | None = None, grid: bool = False) -> _Hits:
+              covers: _CamCovers | None = None, grid: bool = False, only: np.ndarray | None = None) -> _Hits:
         """Closest hit of rays ``o + t d`` (``d`` unit float32 (N, 3); ``o`` (1, 3) or (N, 3)).
 
         ``pix``/``covers``: pixel coordinates of camera rays and the panicles' pixel covers (see
         ``covers``; cheaper than the sphere test); ``grid=True`` when the rays are all pixels, row-major.
-        ``prim``/``bary`` are only meaningful where ``t`` is finite."""
+        ``only`` (N, K) int: per ray, the objects it is traced against (``ENV_CODE`` = stalks and
+        leaves, k >= 0 = panicle k; the soil plane always): anti-aliasing rays only look for what the
+        pixels around them see. ``prim``/``bary`` are only meaningful where ``t`` is finite."""
         n = len(d)
         o = np.asarray(o, np.float32)
         cls = np.zeros(n, np.uint8)
@@ -464,6 +466,8 @@ class _FrameScene:
         env_sel = None
         if covers is not None and covers.env is not None:
             env_sel = covers.env.flat() if grid else covers.env.lookup(rc) if rc is not None else None
+            if only is not None and env_sel is not None:
+                env_sel = env_sel[(only[env_sel] == ENV_CODE).any(axis=1)]
         if self.env is not None and n and env_sel is None:
             ans = self.env.cast_rays(_rays_tensor(o, d), nthreads=_o3d_threads())
             t = ans["t_hit"].numpy()
@@ -490,9 +494,11 @@ class _FrameScene:
             prim[sh] = 0
             bary[sh] = 0.0
         for j, idx in enumerate(self._select(o, d, t, rc, covers, grid)):
+            k = int(self.active[j])
+            if only is not None and len(idx):
+                idx = idx[(only[idx] == k).any(axis=1)]
             if len(idx) == 0:
                 continue
-            k = int(self.active[j])
             Di = self.Dinv32[k]
             oo = o if len(o) == 1 else o[idx]
             o_r = _xf(oo, Di[:3, :3], Di[:3, 3])
@@ -634,18 +640,37 @@ def _normalize(a: np.ndarray) -> np.ndarray:
     return a / np.maximum(np.sqrt(_dot(a, a)), 1e-12)[:, None]
 
 
+@dataclass
+class _PendingShadows:
+    """Shadow segments not traced yet: ray indices, segment starts and vectors (to a flash point), pixels."""
+
+    idx: np.ndarray  # (K,) int64 ray indices
+    start: np.ndarray  # (K, 3) float32
+    vec: np.ndarray  # (K, 3) float32
+    pix: np.ndarray | None  # (K, 2) float32 pixel (u, v) of each ray
+
+    @staticmethod
+    def empty() -> "_PendingShadows":
+        z = np.zeros((0, 3), np.float32)
+        return _PendingShadows(np.zeros(0, np.int64), z, z, None)
+
+
 def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray, light_axes: np.ndarray,
            cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
            scovers: _CamCovers | None = None) -> np.ndarray:
     """Linear RGB radiance (1 = white surface facing the flash at REF_DISTANCE) per ray (float32 (N, 3))."""
-    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
+    direct, vis, amb, _ = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
     return direct * vis[:, None] + amb
 
 
 def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray,
                  light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
-                 scovers: _CamCovers | None = None):
-    """``(direct (N, 3), flash visibility (N,), ambient (N, 3))``: radiance = direct * vis + ambient."""
+                 scovers: _CamCovers | None = None, shadow_rays: np.ndarray | None = None):
+    """``(direct (N, 3), flash visibility (N,), ambient (N, 3), pending)``: radiance = direct * vis + ambient.
+
+    ``shadow_rays`` (bool (N,), None = all): which lit rays get a shadow ray now; the others get
+    ``vis = NaN`` and their shadow segments are returned in ``pending`` (``_PendingShadows``) so the
+    caller can trace the ones it cannot interpolate."""
     ic = cfg.imaging
     world = fs.world
     f32 = fs.f32
@@ -655,8 +680,9 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     vis_out = np.ones(n, np.float32)
     far = ic.light_cutoff + 0.3
     live = np.nonzero(h.t < far)[0]
+    pending = _PendingShadows.empty()
     if len(live) == 0:
-        return direct_out, vis_out, amb_out
+        return direct_out, vis_out, amb_out, pending
     dl = d[live]
     t = h.t[live]
     cls = h.cls[live]
@@ -752,6 +778,14 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     vis = np.ones(m, np.float32)
     if ic.shadows:
         lit = np.nonzero((ndl > 0) & (irr > 1e-4))[0]
+        if shadow_rays is not None:
+            later = ~shadow_rays[live[lit]]
+            if later.any():
+                lt = lit[later]
+                st = p[lt] + nrm[lt] * 2e-4 + ldir[lt] * 5e-4
+                pending = _PendingShadows(live[lt], st, lp[lt] - st, None if pix is None else pix[live[lt]])
+                vis[lt] = np.nan
+                lit = lit[~later]
         start = p[lit] + nrm[lit] * 2e-4 + ldir[lit] * 5e-4
         occ = fs.occluded(start, lp[lit] - start, None if pix is None else pix[live[lit]], scovers)
         vis[lit[occ]] = 0.0
@@ -760,7 +794,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     direct_out[live] = albedo * (ndl * irr)[:, None] + (spec * irr * (ndl > 0))[:, None]
     amb_out[live] = albedo * (ic.ambient * irr * ao)[:, None]
     vis_out[live] = vis
-    return direct_out, vis_out, amb_out
+    return direct_out, vis_out, amb_out, pending
 
 
 def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.ndarray:
@@ -784,6 +818,89 @@ def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.
             den += same
         vis = num / den
     return vis
+
+
+SHADOW_STRIDE = 2  # flash shadow rays on every 2nd pixel of every 2nd row (plus where none is near)
+SHADOW_RADIUS = 2  # px: half-width of the edge-aware window the shadow samples are averaged over
+
+
+def _shadow_grid(H: int, W: int) -> np.ndarray:
+    """Row-major bool mask of the pixels that get their own flash shadow ray (every ``SHADOW_STRIDE``-th
+    pixel in both directions)."""
+    g = np.zeros((H, W), bool)
+    g[::SHADOW_STRIDE, ::SHADOW_STRIDE] = True
+    return g.reshape(-1)
+
+
+def _shadows_from_samples(fs: _FrameScene, vis: np.ndarray, key: np.ndarray, pending: _PendingShadows,
+                          scovers: _CamCovers | None) -> np.ndarray:
+    """Soft-shadow visibility of every pixel from sparse samples (``vis`` NaN where no shadow ray was
+    traced): the edge-aware average of the traced samples within ``SHADOW_RADIUS`` px that see the
+    same object (separable, like ``_filter_visibility``). Pixels with no such sample (slivers of an
+    object) trace their own pending shadow ray. Why: one shadow ray per pixel was a third of the
+    render's ray casts; the penumbra of the small flash disc is smooth at this sampling."""
+    H, W = vis.shape
+    r = SHADOW_RADIUS
+    w = np.isfinite(vis)
+    num = np.where(w, vis, 0).astype(np.float32)
+    den = w.astype(np.float32)
+    kp = np.pad(key, r, mode="constant", constant_values=np.iinfo(key.dtype).min)
+    for axis in (1, 0):
+        nump, denp = np.pad(num, r), np.pad(den, r)
+        n2, d2 = num.copy(), den.copy()
+        for sft in range(-r, r + 1):
+            if sft == 0:
+                continue
+            if axis == 1:
+                win = (slice(r, r + H), slice(r + sft, r + sft + W))
+            else:
+                win = (slice(r + sft, r + sft + H), slice(r, r + W))
+            same = kp[win] == key
+            n2 += np.where(same, nump[win], 0)
+            d2 += np.where(same, denp[win], 0)
+        num, den = n2, d2
+    out = np.where(den > 0, num / np.maximum(den, 1e-12), 1.0).astype(np.float32)
+    if len(pending.idx):
+        rr, cc = np.divmod(pending.idx, W)
+        lone = np.nonzero(den[rr, cc] <= 0)[0]
+        if len(lone):
+            occ = fs.occluded(pending.start[lone], pending.vec[lone],
+                              None if pending.pix is None else pending.pix[lone], scovers)
+            out[rr[lone], cc[lone]] = np.where(occ, 0.0, 1.0)
+    return out
+
+
+ENV_CODE = -2  # ``_FrameScene.trace(only=...)`` code of the env BVH (stalks and leaves)
+SEED_INRADIUS = 0.93  # the seed mesh (icosphere, in-radius 0.934) holds its ellipsoid scaled by this
+
+
+def _inside_seed(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray, obj: np.ndarray) -> np.ndarray:
+    """True where the ray ``o + t d`` (t > 0) meets seed ``sid``'s ellipsoid shrunk by ``SEED_INRADIUS``
+    (panicle ``obj``, at this frame's wind pose), which lies inside the seed's triangle mesh: such a
+    ray meets that seed's mesh."""
+    f32 = fs.f32
+    n = len(d)
+    o_r = np.empty((n, 3), np.float32)
+    d_r = np.empty((n, 3), np.float32)
+    for k in np.unique(obj):
+        sel = obj == k
+        Di = fs.Dinv32[k]
+        o_r[sel] = _xf(np.broadcast_to(o, (int(sel.sum()), 3)), Di[:3, :3], Di[:3, 3])
+        d_r[sel] = _xf(d[sel], Di[:3, :3])
+    A = f32["axes"][sid]  # (n, 3, 3): columns are the seed's local axes
+    inv_r = 1.0 / (f32["radii"][sid] * np.float32(SEED_INRADIUS))
+    # start the ray at its closest approach to the seed centre (well conditioned: millimetres, not
+    # the camera's metres); the seed is ahead when that point is
+    dp = o_r - f32["xyz"][sid]
+    tc = -_dot(dp, d_r)
+    dp = dp + tc[:, None] * d_r
+    q0 = np.einsum("nij,ni->nj", A, dp) * inv_r  # ray in the unit-sphere frame of the ellipsoid
+    qd = np.einsum("nij,ni->nj", A, d_r) * inv_r
+    a = _dot(qd, qd)
+    b = _dot(q0, qd)
+    c = _dot(q0, q0) - 1
+    disc = b * b - a * c
+    return (disc > 0) & (tc > 0)
 
 
 def _camera_dirs(world: World, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
@@ -820,9 +937,14 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     d = _xf(dc, R)
     covers, scovers = fs.covers(T_wc, calib, light, cfg)
     h = fs.trace(o, d, pix, covers, grid=True)
-    direct, vis, amb = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
     key = _object_key(h)
-    if cfg.imaging.shadows and cfg.imaging.flash_radius > 0:
+    soft = cfg.imaging.shadows and cfg.imaging.flash_radius > 0
+    sparse = soft and SHADOW_STRIDE > 1
+    direct, vis, amb, pending = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers,
+                                             _shadow_grid(H, W) if sparse else None)
+    if sparse:
+        vis = _shadows_from_samples(fs, vis.reshape(H, W), key.reshape(H, W), pending, scovers).reshape(-1)
+    elif soft:
         vis = _filter_visibility(vis.reshape(H, W), key.reshape(H, W)).reshape(-1)
     rgb = direct * vis[:, None] + amb
     seed_img = h.seed.reshape(H, W)
@@ -853,18 +975,38 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
             kp, tp = np.pad(key2, 1, mode="edge"), np.pad(tt, 1, mode="edge")
             k0, t0 = key[idx], tt.reshape(-1)[idx]
             agree: dict[tuple[int, int], np.ndarray] = {}
+            nearer: dict[tuple[int, int], np.ndarray] = {}
             need = np.zeros((S, len(idx)), bool)
+            front = np.zeros((S, len(idx)), bool)  # a disagreeing quadrant neighbour is nearer
             for j, (du, dv) in enumerate(grid_off):
                 sx, sy = int(np.sign(du)), int(np.sign(dv))
                 for nb in {(0, sx), (sy, 0), (sy, sx)} - {(0, 0)}:
                     if nb not in agree:
                         kn, tn = kp[er + 1 + nb[0], ec + 1 + nb[1]], tp[er + 1 + nb[0], ec + 1 + nb[1]]
                         agree[nb] = (kn == k0) & (np.abs(tn - t0) <= 0.05 * np.minimum(tn, t0))
+                        nearer[nb] = ~agree[nb] & (tn < t0)
                     need[j] |= ~agree[nb]
+                    front[j] |= nearer[nb]
+            # a sub-sample of a seed pixel whose ray passes inside the seed's mesh (inscribed
+            # ellipsoid test) and where nothing nearer is seen around sees that seed: not traced
+            cand = np.nonzero((need & ~front & (h.seed[idx] >= 0)[None, :]).reshape(-1))[0]
+            if len(cand):
+                ce = cand % len(idx)
+                pc = pix[idx[ce]] + grid_off[cand // len(idx)]
+                need.reshape(-1)[cand[_inside_seed(fs, o, _xf(_unit_dirs(calib, pc), R), h.seed[idx[ce]],
+                                                   h.obj[idx[ce]])]] = False
             sel = np.nonzero(need.reshape(-1))[0]
             ps = (pix[idx][None, :, :] + grid_off[:, None, :]).reshape(-1, 2)[sel]
             ds = _xf(_unit_dirs(calib, ps), R)
-            hs = fs.trace(o, ds, ps, covers)
+            # each sub-sample is traced against what its pixel and the pixels it lies towards see
+            code = np.where((h.cls == CLS_STALK) | (h.cls == CLS_LEAF), ENV_CODE, h.obj).reshape(H, W)
+            cp = np.pad(code, 1, mode="edge")
+            only = np.empty((S, len(idx), 4), np.int32)
+            for j, (du, dv) in enumerate(grid_off):
+                sx, sy = int(np.sign(du)), int(np.sign(dv))
+                for m_, nb in enumerate(((0, 0), (0, sx), (sy, 0), (sy, sx))):
+                    only[j, :, m_] = cp[er + 1 + nb[0], ec + 1 + nb[1]]
+            hs = fs.trace(o, ds, ps, covers, only=only.reshape(-1, 4)[sel])
             ks = _object_key(hs)
             same = ks == np.tile(key[idx], S)[sel]
             sub_rgb = np.tile(rgb[idx], (S, 1))
@@ -994,8 +1136,11 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
     def one(job):
         name, T, crng = job
         _O3D_THREADS.n = 1 if cfg.imaging.threads > 1 else 0
-        lin, seed_img, depth, _ = _render_camera(fs, T, calib, cfg, crng, light, light_axes)
-        img = _develop(lin, calib, cfg, crng, gain, depth, world.cache)
+        # flash sampling and sensor noise from separate streams: the noise image does not depend on
+        # how many flash samples the shading drew
+        shade_rng, noise_rng = crng.spawn(2)
+        lin, seed_img, depth, _ = _render_camera(fs, T, calib, cfg, shade_rng, light, light_axes)
+        img = _develop(lin, calib, cfg, noise_rng, gain, depth, world.cache)
         labels, inst = _instances(fs, seed_img, centers, T, calib)
         return name, (img, labels, inst, depth)
 

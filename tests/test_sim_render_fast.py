@@ -1,0 +1,105 @@
+"""The renderer's cheaper image model: sparse flash-shadow rays and anti-aliasing sub-samples that are
+not traced where the seed's inscribed ellipsoid proves what they see.
+
+Small renders (scale 0.15, a 1 m range of small panicles) so the file runs in well under a minute.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import seedmap.sim.render as render
+from seedmap.sim import SimConfig, build_range_world, render_stereo, right_pose
+from seedmap.sim.meshes import ellipsoids
+from seedmap.sim.range import _rngs, range_trajectory
+
+
+@pytest.fixture(scope="module")
+def scene():
+    cfg = SimConfig(seed=3, world={"length": 1.0, "gap": 0.3}, camera={"scale": 0.15},
+                    panicle={"seeds_min": 300, "seeds_max": 600})
+    rw, rt, _ = _rngs(cfg)
+    world = build_range_world(cfg, rw)
+    traj = range_trajectory(cfg, rt)
+    calib = cfg.camera.calib()
+    i = len(traj) // 2
+    T = traj.poses[i]
+    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+    fs = render._FrameScene(world, float(traj.timestamps[i]), [T, right_pose(T, calib.baseline)], calib, light)
+    return cfg, world, calib, T, float(traj.timestamps[i]), fs
+
+
+def test_inside_seed_rays_hit_that_seeds_mesh(scene):
+    """Rays the inscribed-ellipsoid test accepts meet the seed's own triangle mesh (at the frame's wind
+    pose); rays well outside the full ellipsoid are rejected."""
+    import open3d as o3d
+
+    cfg, world, calib, T, t, fs = scene
+    rng = np.random.default_rng(0)
+    o = T[:3, 3].astype(np.float32)[None]
+    k = int(fs.active[0])
+    p = world.panicles[k]
+    sids = rng.choice(np.arange(p.seed_start, p.seed_stop), 40, replace=False)
+    centers = world.seed_centers_at(t, fs.D)[sids]
+    n_acc = n_rej = 0
+    for sid, c in zip(sids, centers):
+        V, F = ellipsoids(world.seeds.xyz[sid][None], world.seed_axes[sid][None], world.seeds.radii[sid][None])
+        V = V @ fs.D[k, :3, :3].T + fs.D[k, :3, 3]  # the mesh at this instant
+        sc = o3d.t.geometry.RaycastingScene()
+        sc.add_triangles(o3d.core.Tensor.from_numpy(V.astype(np.float32)),
+                         o3d.core.Tensor.from_numpy(F.astype(np.uint32)))
+        rmax = float(world.seeds.radii[sid].max())
+        aim = c + rng.uniform(-1.6 * rmax, 1.6 * rmax, (400, 3))
+        d = (aim - o).astype(np.float32)
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        inside = render._inside_seed(fs, o, d, np.full(len(d), sid), np.full(len(d), k, np.int32))
+        hit = np.isfinite(sc.cast_rays(render._rays_tensor(np.repeat(o, len(d), 0), d))["t_hit"].numpy())
+        assert hit[inside].all()
+        # a ray whose closest approach to the centre exceeds the largest semi-axis misses the ellipsoid
+        oc = (c - o[0]).astype(np.float32)
+        miss = np.linalg.norm(oc - (d @ oc)[:, None] * d, axis=1) > rmax * 1.01
+        assert not inside[miss].any()
+        n_acc += int(inside.sum())
+        n_rej += int((hit & ~inside).sum())
+    assert n_acc > 1000  # the test accepts most rays through a seed ...
+    assert n_acc > 2 * n_rej  # ... leaving only a rim near the silhouette to trace
+
+
+def test_trace_only_restricts_objects_and_keeps_hits(scene):
+    """``trace(only=...)`` with every object allowed equals the unrestricted trace; with only the env
+    allowed no ray reports a panicle hit."""
+    cfg, world, calib, T, t, fs = scene
+    dc, pix = render._camera_dirs(world, calib)
+    o = T[:3, 3].astype(np.float32)[None]
+    d = render._xf(dc, T[:3, :3])
+    covers, _ = fs.covers(T, calib, np.asarray(T[:3, 3]), cfg)
+    rng = np.random.default_rng(1)
+    pick = rng.choice(len(pix), 30000, replace=False)
+    ps, ds = pix[pick], d[pick]
+    every = np.tile(np.r_[render.ENV_CODE, fs.active].astype(np.int32), (len(ps), 1))
+    a, b = fs.trace(o, ds, ps, covers), fs.trace(o, ds, ps, covers, only=every)
+    assert (a.seed >= 0).sum() > 500
+    np.testing.assert_array_equal(a.seed, b.seed)
+    np.testing.assert_array_equal(a.t, b.t)
+    env_only = fs.trace(o, ds, ps, covers, only=np.full((len(ps), 1), render.ENV_CODE, np.int32))
+    assert (env_only.seed < 0).all() and (env_only.obj < 0).all()
+
+
+def test_sparse_shadows_match_dense_shadows(scene, monkeypatch):
+    """Shadow rays on a quarter of the pixels change no label and move the image by well under one
+    grey level on average (same flash samples and sensor noise)."""
+    cfg, world, calib, T, t, fs = scene
+    sparse = render_stereo(world, T, calib, cfg, np.random.default_rng(7), t)
+    monkeypatch.setattr(render, "SHADOW_STRIDE", 1)
+    dense = render_stereo(world, T, calib, cfg, np.random.default_rng(7), t)
+    assert np.array_equal(sparse.left_labels, dense.left_labels)
+    assert np.array_equal(sparse.right_labels, dense.right_labels)
+    for a, b in ((sparse.left, dense.left), (sparse.right, dense.right)):
+        diff = np.abs(a.astype(np.int32) - b.astype(np.int32))
+        assert 0 < diff.mean() < 1.0, diff.mean()
+        assert abs(float(a.mean()) - float(b.mean())) < 0.3
+    # shadows are really there (a render without them is brighter)
+    no_shadows = cfg.model_copy(update={"imaging": cfg.imaging.model_copy(update={"shadows": False})})
+    lit = render_stereo(world, T, calib, no_shadows, np.random.default_rng(7), t)
+    assert lit.left.mean() > sparse.left.mean() + 0.3
