@@ -138,3 +138,26 @@ def test_multiview_edge_cases_and_the_3d_entry_point():
     with pytest.raises(ValueError, match="count_multiview"):
         count_seeds(np.zeros((1, 3)), np.zeros(1), np.ones(1), CountConfig(method="multiview"))
     assert ReconConfig().count.method == "multiview"
+
+
+def test_seedmap_count_recounts_multiview_from_a_results_folder(tmp_path):
+    from seedmap.errors import InputError
+    from seedmap.io.calibration import save_calib_yaml
+    from seedmap.io.trajectory import write_tum
+    from seedmap.recon.pipeline import detections_csv_text, read_detections, recount
+    from seedmap.records import Trajectory
+
+    views, poses, _, _, _ = scan(np.random.default_rng(5))
+    views[3] = None  # a skipped view stays skipped
+    (tmp_path / "observations.csv").write_text("view,x,y,z,diameter_m,gt_seed_id,seed\n0,0,0,0.3,0.004,-1,0\n")
+    (tmp_path / "detections.csv").write_text(detections_csv_text(views))
+    save_calib_yaml(CALIB, tmp_path / "calib.yaml")
+    write_tum(tmp_path / "poses_tum.txt", Trajectory(np.arange(VIEWS, dtype=float), poses))
+    back = read_detections(tmp_path, VIEWS)
+    assert back[3] is None and np.allclose(back[0].left, views[0].left, atol=1e-3)
+    cfg = ReconConfig()
+    direct = count_multiview(views, poses, CALIB, cfg.count).count
+    assert abs(recount(tmp_path, cfg).count - direct) <= 2  # csv rounding of the keypoints (6 digits)
+    (tmp_path / "detections.csv").unlink()
+    with pytest.raises(InputError, match="detections.csv"):
+        recount(tmp_path, cfg)

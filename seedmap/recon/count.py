@@ -556,12 +556,12 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     # step 2: symmetric reprojection links between views up to max_lag apart
     by_view = {int(k): np.flatnonzero(view == k) for k in np.unique(view)}
     trees = {k: cKDTree(uvL[i]) for k, i in by_view.items()}
-    lnk = cfg.mv_link_px
     edges = []
     for k, A in by_view.items():
         for lag, m in _neighbour_views(k, V, cfg.max_lag, cfg.circular, both_sides=False):
             if m not in by_view:
                 continue
+            lnk = cfg.mv_link_px + cfg.mv_link_px_per_lag * (lag - 1)  # relative pose errors grow with lag
             pl, pr = _project_world(calib, Tcw[m], X[A])
             dl, j = _nearest(trees[m], pl, lnk)
             hit = np.flatnonzero(j >= 0)
