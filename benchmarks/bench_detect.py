@@ -1,5 +1,8 @@
 """Detector speed on CPU: frames/s per detector and image size, as a ratio to cv2.GaussianBlur.
 
+Detectors: ``fast-classic`` (session 2) at full and half resolution, and the ``fast`` CNN
+(``fast-cnn``, onnxruntime) at full resolution with 1 and 2 threads, on gated tiles and whole-image.
+
 The baseline (a 5x5-sigma-2 Gaussian blur of the same RGB image) is timed in the same run, so the
 ratio ``detector_ms / blur_ms`` is comparable across machines and loads. Also times one training
 iteration of the full-width VGG16 Faster R-CNN and of pix2pix on CPU, to estimate full training time.
@@ -76,23 +79,32 @@ def main() -> None:
     a = ap.parse_args()
 
     from seedmap.detect import make_detector
-    from seedmap.detect.config import FastConfig
+    from seedmap.detect.cnn import default_cnn_path
+    from seedmap.detect.config import CnnConfig, FastConfig
 
     rows = []
     for scale in (1.0, 0.5):
         w, h = int(round(1434 * scale)), int(round(1050 * scale))
         img, src = _image(a.dataset, w, h)
         blur_ms = _time(lambda: cv2.GaussianBlur(img, (0, 0), 2.0), a.repeats * 3)
-        det = make_detector("fast", overrides=[f"fast.seed_px={FastConfig().seed_px * scale}"])
-        ms = _time(lambda: det.detect(img), a.repeats)
-        n = len(det.detect(img))
-        cpu_ms = _cpu_time_1thread(lambda: det.detect(img), a.repeats)
         cpu_blur = _cpu_time_1thread(lambda: cv2.GaussianBlur(img, (0, 0), 2.0), a.repeats * 3)
-        rows.append({"detector": "fast", "width": w, "height": h, "ms": ms, "fps": 1000.0 / ms,
-                     "blur_ms": blur_ms, "ratio_vs_blur": ms / blur_ms, "detections": n, "image": src,
-                     "cpu_ms_1thread": cpu_ms, "fps_1core_from_cpu_time": 1000.0 / cpu_ms,
-                     "blur_cpu_ms_1thread": cpu_blur, "ratio_vs_blur_cpu": cpu_ms / cpu_blur})
-        print(rows[-1], flush=True)
+        variants = [("fast-classic", "fast-classic", [f"fast.seed_px={FastConfig().seed_px * scale}"])]
+        if scale == 1.0 and default_cnn_path().is_file():
+            # the CNN works at the pixel scale it was trained on only (full resolution)
+            variants += [(f"fast-cnn ({t} onnxruntime thread{'s' if t > 1 else ''}, {label})", "fast-cnn",
+                          [f"cnn.threads={t}", f"cnn.tile={tile}"])
+                         for t in (1, 2) for tile, label in ((CnnConfig().tile, "gated tiles"), (0, "whole image"))]
+        for label, name, ov in variants:
+            det = make_detector(name, overrides=ov)
+            ms = _time(lambda: det.detect(img), a.repeats)
+            n = len(det.detect(img))
+            # CPU time of all threads (onnxruntime's included): robust to the other jobs on the host
+            cpu_ms = _cpu_time_1thread(lambda: det.detect(img), a.repeats)
+            rows.append({"detector": label, "width": w, "height": h, "ms": ms, "fps": 1000.0 / ms,
+                         "blur_ms": blur_ms, "ratio_vs_blur": ms / blur_ms, "detections": n, "image": src,
+                         "cpu_ms_1thread": cpu_ms, "fps_1core_from_cpu_time": 1000.0 / cpu_ms,
+                         "blur_cpu_ms_1thread": cpu_blur, "ratio_vs_blur_cpu": cpu_ms / cpu_blur})
+            print(rows[-1], flush=True)
     if a.dataset:
         from seedmap.io.seedmap_dataset import SeedmapDataset
 

@@ -249,6 +249,38 @@ def train_fast_refiner_cmd(
                f"loss {ref.info['loss_first_100']:.3f} -> {ref.info['loss_last_100']:.3f})")
 
 
+@train_app.command("fast-cnn")
+def train_fast_cnn_cmd(
+    data: List[Path] = typer.Argument(..., help="Simulated training datasets with GT masks (e.g. data/det_s1)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for fast_cnn.onnx, checkpoint.safetensors, metrics."),
+    val: Optional[List[Path]] = typer.Option(None, "--val", help="Held-out datasets (default: last frame of each)."),
+    steps: int = typer.Option(5000, "--steps", help="Training steps."),
+    batch: int = typer.Option(12, "--batch", help="Crops per step."),
+    crop: int = typer.Option(96, "--crop", help="Crop size (px)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and crops."),
+    threads: int = typer.Option(1, "--threads", help="torch CPU threads."),
+    c1: int = typer.Option(12, "--c1", help="Channels at full resolution."),
+    c2: int = typer.Option(24, "--c2", help="Channels at half resolution."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
+) -> None:
+    """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.detect.train_cnn import CnnTrainConfig, train_cnn
+
+    for d in list(data) + list(val or []):
+        if not d.is_dir():
+            raise SeedmapError(f"{d}: dataset folder not found")
+    if (out / "fast_cnn.onnx").exists() and not resume:
+        raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
+    cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2)
+    m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
+    f = m["final"] or {}
+    typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "
+               f"held-out loss {f.get('val_loss', float('nan')):.3f}, box L1 {f.get('val_box_l1_px', float('nan')):.2f} px)")
+
+
 @train_app.command("export")
 def train_export_cmd(
     weights: Path = typer.Argument(..., help="Weights folder (detector/segmenter.safetensors) or one such file."),
@@ -381,6 +413,8 @@ def eval_associate_cmd(
         t.add_row(name, str(s["matches"]), str(s["correct"]), str(s["possible"]), f(s["precision"]),
                   f(s["recall"]), f(s["recall_gated"]))
     Console().print(t)
+    if rep.cpu_ms_per_frame:
+        typer.echo("association CPU ms/frame: " + ", ".join(f"{k} {v:.0f}" for k, v in rep.cpu_ms_per_frame.items()))
     if out is not None:
         write_report(rep, out)
         typer.echo(f"report in {out}")

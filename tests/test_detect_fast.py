@@ -26,7 +26,7 @@ def test_fast_finds_most_seeds(ds):
     # the synthetic seeds are whole, isolated 6 px discs on a dark ground; the defaults (3.5 px filter
     # scale, wide regions) are tuned for the simulated range's touching, partly hidden seeds
     # (the classical stage: the shipped refiner was trained on the simulated range, not on these discs)
-    det = make_detector("fast", overrides=["fast.seed_px=5", "fast.region_min=-6", "fast.refine=false"])
+    det = make_detector("fast-classic", overrides=["fast.seed_px=5", "fast.region_min=-6", "fast.refine=false"])
     for i in range(len(ds)):
         sd = det.detect_stereo(ds[i])
         for cam, d in (("left", sd.left), ("right", sd.right)):
@@ -41,7 +41,7 @@ def test_fast_finds_most_seeds(ds):
 
 
 def test_fast_rejects_bad_images():
-    det = make_detector("fast")
+    det = make_detector("fast-classic")
     with pytest.raises(InputError, match="H x W x 3"):
         det.detect(np.zeros((10, 10), np.uint8))
     with pytest.raises(InputError, match="uint16"):
@@ -53,11 +53,11 @@ def test_fast_rejects_bad_images():
 
 def test_work_scale_maps_back(ds):
     fr = ds[0]
-    full = make_detector("fast", overrides=["fast.seed_px=6"]).detect(fr.left)
+    full = make_detector("fast-classic", overrides=["fast.seed_px=6"]).detect(fr.left)
     import cv2
 
     big = cv2.resize(fr.left, None, fx=2, fy=2, interpolation=cv2.INTER_LINEAR)
-    half = make_detector("fast", overrides=["fast.seed_px=12", "fast.work_scale=0.5"]).detect(big)
+    half = make_detector("fast-classic", overrides=["fast.seed_px=12", "fast.work_scale=0.5"]).detect(big)
     kp = (half.keypoints + 0.5) / 2 - 0.5  # back to the original image's pixels
     dist, _ = cKDTree(full.keypoints).query(kp)
     assert np.median(dist) < 0.5
@@ -123,7 +123,7 @@ def test_fast_on_simulated_frame(tmp_path):
     p = sim.simulate_range(cfg, tmp_path / "sim", progress=False)
     d = SeedmapDataset(p)
     i = int(np.argmax([len(d.gt_instances(k, "left")) for k in range(len(d))]))
-    det = make_detector("fast").detect(d[i].left)
+    det = make_detector("fast-classic").detect(d[i].left)
     inst = d.gt_instances(i, "left")
     well = inst.center_visible & (inst.area >= 15)
     assert well.sum() > 50
@@ -148,9 +148,9 @@ def test_fast_edge_test_drops_leaf_edges_keeps_seeds():
     img = cv2.GaussianBlur(img, (0, 0), 0.6)
     img = np.clip(img + rng.normal(0, 4, img.shape), 0, 255).astype(np.uint8)
     near_edge = lambda d: (d.keypoints[:, 0] < 75).sum()  # noqa: E731
-    off = make_detector("fast", overrides=["fast.edge_ratio=0", "fast.refine=false"]).detect(img)
+    off = make_detector("fast-classic", overrides=["fast.edge_ratio=0", "fast.refine=false"]).detect(img)
     # a strict ratio (the default 8 is looser: the refiner removes the rest on the simulated range)
-    on = make_detector("fast", overrides=["fast.edge_ratio=5", "fast.refine=false"]).detect(img)
+    on = make_detector("fast-classic", overrides=["fast.edge_ratio=5", "fast.refine=false"]).detect(img)
     assert near_edge(off) >= 5  # the failure the test exists for
     assert near_edge(on) <= near_edge(off) // 2
     dist, _ = cKDTree(on.keypoints).query(centres)

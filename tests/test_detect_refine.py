@@ -48,11 +48,11 @@ def test_refiner_learns_boxes_and_roundtrips(data, tmp_path):
 
 def test_shipped_refiner_is_used_and_bad_files_are_named(tmp_path):
     assert default_refiner_path().is_file()
-    assert make_detector("fast").refiner is not None
-    assert make_detector("fast", overrides=["fast.refine=false"]).refiner is None
+    assert make_detector("fast-classic").refiner is not None
+    assert make_detector("fast-classic", overrides=["fast.refine=false"]).refiner is None
     bad = tmp_path / "r.safetensors"
     bad.write_bytes(b"not safetensors")
     with pytest.raises(InputError, match="r.safetensors"):
-        make_detector("fast", overrides=[f"fast.refine_weights={bad}"])
+        make_detector("fast-classic", overrides=[f"fast.refine_weights={bad}"])
     with pytest.raises(InputError, match="not found"):
-        make_detector("fast", overrides=[f"fast.refine_weights={tmp_path / 'none.safetensors'}"])
+        make_detector("fast-classic", overrides=[f"fast.refine_weights={tmp_path / 'none.safetensors'}"])

@@ -57,6 +57,41 @@ class FastConfig(ConfigModel):
     #: keep candidates whose refiner seed probability is at least this
     refine_threshold: float = 0.5
     ellipse: Literal["moments", "contour"] = "moments"
+    #: ``fast`` runs the small CNN (section ``cnn``, seedmap.detect.cnn) instead of the classical
+    #: pipeline above when its weights exist; ``fast-classic`` always runs the classical one
+    use_cnn: bool = True
+
+
+class CnnConfig(ConfigModel):
+    """The ``fast`` detector's small CNN (seedmap.detect.cnn): heatmap peaks + box per pixel, onnxruntime.
+
+    Runs only on tiles where seeds can be: a tile is kept when its bright, blob-like pixels (the
+    classical seediness DoG at half resolution, above ``gate_response``) number at least
+    ``gate_min_px``; ``tile = 0`` runs on the whole image. Gate defaults chosen on ``data/det_s1``
+    (8 images): 24 % of the image area (margins included) holds 99.5 % of the GT seeds >= 6 px.
+    """
+
+    #: ONNX weights; None = the shipped seedmap/detect/weights/fast_cnn.onnx
+    weights: str | None = None
+    #: keep heatmap peaks with seed probability at least this
+    threshold: float = 0.35
+    #: tile side (px) at the input resolution; 0 = whole image in one pass
+    tile: int = 48
+    #: context added around every tile (px; the network's receptive-field radius is ~10 px)
+    margin: int = 10
+    #: gate: half-resolution DoG of the seediness image must exceed this (grey levels) ...
+    gate_response: float = 18.0
+    #: ... and its smoothed brightness this (grey levels) ...
+    gate_brightness: float = 60.0
+    #: ... on at least this many half-resolution pixels of the tile (0 = no gate, every tile)
+    gate_min_px: int = 4
+    #: box edges and keypoint averaged over the peak's 3x3 neighbours weighted by
+    #: sigmoid(heat) ** smooth (0 = the peak pixel's own prediction)
+    smooth: float = 0.0
+    #: tiles per onnxruntime call
+    batch: int = 32
+    #: onnxruntime intra-op threads (0 = onnxruntime's default, all cores)
+    threads: int = 0
 
 
 class LearnedConfig(ConfigModel):
@@ -79,6 +114,7 @@ class DetectConfig(ConfigModel):
     seed: int = 0
     gt: GtConfig = GtConfig()
     fast: FastConfig = FastConfig()
+    cnn: CnnConfig = CnnConfig()
     learned: LearnedConfig = LearnedConfig()
     #: how the input is opened (format, bag topics, calibration file...)
     dataset: DatasetOptions = DatasetOptions()

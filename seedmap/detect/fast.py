@@ -201,8 +201,23 @@ def _blob_like(dog: np.ndarray, x: np.ndarray, y: np.ndarray, ratio: float) -> n
     return (det > 0) & (tr < 0) & (tr * tr * ratio < (ratio + 1) ** 2 * det)
 
 
-def _factory(dataset=None, weights=None, config=None) -> FastDetector:
+def _classic_factory(dataset=None, weights=None, config=None) -> FastDetector:
     return FastDetector(config.fast if config is not None else None)
 
 
-register_detector("fast", _factory, "classical OpenCV blob + watershed detector, real-time on CPU (default)")
+def _factory(dataset=None, weights=None, config=None) -> Detector:
+    """``fast``: the small CNN (seedmap.detect.cnn) when ``fast.use_cnn`` and its weights exist, else classical."""
+    fc = config.fast if config is not None else FastConfig()
+    if fc.use_cnn:
+        from seedmap.detect.cnn import CnnDetector, default_cnn_path
+
+        cc = config.cnn if config is not None else None
+        if (cc is not None and cc.weights) or default_cnn_path().is_file():
+            return CnnDetector(cc, fc)
+    return FastDetector(fc)
+
+
+register_detector("fast", _factory, "seed detector for CPU: the small CNN (fast-cnn) when its shipped weights "
+                  "exist, else the classical one (fast-classic) (default)")
+register_detector("fast-classic", _classic_factory,
+                  "classical OpenCV blob + watershed detector + patch refiner (session 2), real-time on CPU")

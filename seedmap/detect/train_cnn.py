@@ -1,0 +1,423 @@
+"""Training of the ``fast`` detector's small CNN (torch on CPU) and its export to ONNX.
+
+The network (:class:`SeedNet`) is CenterNet-style and fully convolutional: for every full-resolution
+pixel it predicts a seed-centre logit, the four distances (px) from that pixel to the seed's box
+edges (left, top, right, bottom; GT convention x0/y0 inclusive, x1/y1 exclusive) and the sub-pixel
+offset (px) from the pixel to the seed's keypoint. Most of the work runs at half resolution (one
+stride-2 convolution, two 3x3 layers, one of them dilated for context); a full-resolution skip from
+the stem keeps the box edges pixel-exact, which a 5 px seed needs for IoU >= 0.5.
+
+Targets come from a simulated dataset's ground truth (``gt/masks`` + ``gt/instances``):
+
+* heatmap: a Gaussian (sigma ``heat_sigma`` px) at the rounded keypoint of every instance of at
+  least ``min_area`` visible pixels, trained with CenterNet's penalty-reduced focal loss;
+* keypoint: the projected 3D centre where it is visible (``center_visible``), else the mask centroid;
+* box edges and offset: L1 on every pixel of the instance's mask (FCOS-style: more signal than the
+  centre pixel alone), read at the heatmap peak at inference.
+
+Inference does not need torch: :func:`export_onnx` writes an ONNX graph that
+:mod:`seedmap.detect.cnn` runs in onnxruntime. Weights/checkpoints are safetensors.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from seedmap.errors import InputError
+
+#: output channels of the network: heat logit, l, t, r, b (px), dx, dy (px)
+N_OUT = 7
+
+
+def build_net(c1: int = 12, c2: int = 24):
+    """The torch :class:`SeedNet` (imports torch; training and export only)."""
+    import torch
+    from torch import nn
+
+    class SeedNet(nn.Module):
+        """Full-res stem -> half-res body (3 convs, one dilated) -> upsample + skip -> full-res head."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.c1, self.c2 = c1, c2
+            self.stem = nn.Conv2d(3, c1, 3, padding=1)
+            self.down = nn.Conv2d(c1, c2, 3, stride=2, padding=1)
+            self.mid1 = nn.Conv2d(c2, c2, 3, padding=1)
+            self.mid2 = nn.Conv2d(c2, c2, 3, padding=2, dilation=2)
+            self.lat = nn.Conv2d(c2, c1, 1)
+            self.fuse = nn.Conv2d(c1, c1, 3, padding=1)
+            self.head = nn.Conv2d(c1, N_OUT, 1)
+            with torch.no_grad():
+                self.head.bias.zero_()
+                self.head.bias[0] = -4.0  # CenterNet prior: few pixels are centres
+                self.head.bias[1:5] = 2.0
+
+        def forward(self, x):  # noqa: ANN001, ANN201
+            r = torch.relu
+            s = r(self.stem(x))
+            h = r(self.down(s))
+            h = r(self.mid1(h))
+            h = r(self.mid2(h))
+            u = nn.functional.interpolate(self.lat(h), scale_factor=2.0, mode="nearest")
+            u = u[:, :, : s.shape[2], : s.shape[3]]
+            f = r(self.fuse(r(s + u)))
+            return self.head(f)
+
+    return SeedNet()
+
+
+# ------------------------------------------------------------------------------------------------
+# training data
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TrainImage:
+    """One image with compact per-pixel targets (instance index map + per-instance arrays)."""
+
+    rgb: np.ndarray  # H x W x 3 uint8
+    inst: np.ndarray  # H x W int16: row into the per-instance arrays, -1 = background / ignored
+    heat: np.ndarray  # H x W float16 target heatmap
+    boxes: np.ndarray  # (N, 4) float32 GT boxes
+    kp: np.ndarray  # (N, 2) float32 keypoint targets (u, v)
+    centers: np.ndarray  # (N, 2) int peak pixels
+
+
+def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 4,
+                  heat_sigma: float = 1.0) -> TrainImage:
+    """Targets of one simulated image from its GT label image and instance table."""
+    h, w = labels.shape
+    lut = np.full(int(max(labels.max(), inst.label.max(initial=0))) + 1, -1, np.int64)
+    keep = inst.area >= min_area
+    rows = np.flatnonzero(keep)
+    lut[inst.label[rows].astype(np.int64)] = np.arange(len(rows))
+    idx = lut[labels.astype(np.int64)].astype(np.int16)
+    boxes = inst.boxes[rows].astype(np.float32)
+    # keypoint: projected centre where visible, else the centroid of the visible mask
+    cnt = np.bincount(idx[idx >= 0].astype(np.int64), minlength=len(rows)).astype(np.float64)
+    ys, xs = np.nonzero(idx >= 0)
+    li = idx[ys, xs].astype(np.int64)
+    cx = np.bincount(li, xs, len(rows)) / np.maximum(cnt, 1)
+    cy = np.bincount(li, ys, len(rows)) / np.maximum(cnt, 1)
+    vis = inst.center_visible[rows].astype(bool)
+    kp = np.where(vis[:, None], inst.center_uv[rows], np.c_[cx, cy]).astype(np.float32)
+    c = np.round(kp).astype(np.int64)
+    c[:, 0] = np.clip(c[:, 0], 0, w - 1)
+    c[:, 1] = np.clip(c[:, 1], 0, h - 1)
+    heat = np.zeros((h, w), np.float32)
+    rr = int(np.ceil(3 * heat_sigma))
+    for dy in range(-rr, rr + 1):
+        for dx in range(-rr, rr + 1):
+            g = np.exp(-(dx * dx + dy * dy) / (2 * heat_sigma**2))
+            if g < 0.01:
+                continue
+            x = c[:, 0] + dx
+            y = c[:, 1] + dy
+            ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+            np.maximum.at(heat, (y[ok], x[ok]), g)
+    return TrainImage(rgb, idx, heat.astype(np.float16), boxes, kp, c)
+
+
+def load_training_images(datasets: list[str | Path], frames: dict | None = None, min_area: int = 4,
+                         heat_sigma: float = 1.0, progress: bool = False) -> list[TrainImage]:
+    """Every (frame, camera) image of the simulated ``datasets`` with its targets."""
+    from seedmap.io.images import read_rgb
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    items = []
+    for d in datasets:
+        ds = SeedmapDataset(d)
+        if not ds.has_gt:
+            raise InputError("dataset has no ground truth (gt/instances/) to train on", d)
+        fr = (frames or {}).get(str(d), range(len(ds)))
+        items += [(ds, i, cam) for i in fr for cam in ("left", "right")]
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(items, desc="cnn targets", unit="img")
+    out = []
+    for ds, i, cam in items:
+        out.append(image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam),
+                                 ds.gt_instances(i, cam), min_area, heat_sigma))
+    return out
+
+
+def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Generator,
+               seed_fraction: float = 0.75, augment: bool = True) -> tuple[np.ndarray, ...]:
+    """``(x (n,3,S,S), heat (n,S,S), reg (n,6,S,S) = l,t,r,b,dx,dy, reg_mask (n,S,S))`` crops.
+
+    ``seed_fraction`` of the crops are centred near a random seed, the rest anywhere (leaf edges,
+    stalks, background as negatives). Augmentation: horizontal flip, brightness gain 0.8-1.2.
+    """
+    X = np.zeros((n, 3, size, size), np.float32)
+    H = np.zeros((n, size, size), np.float32)
+    R = np.zeros((n, 6, size, size), np.float32)
+    M = np.zeros((n, size, size), np.float32)
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    for k in range(n):
+        im = images[int(rng.integers(len(images)))]
+        h, w = im.inst.shape
+        if rng.random() < seed_fraction and len(im.centers):
+            cx, cy = im.centers[int(rng.integers(len(im.centers)))]
+            x0 = int(np.clip(cx - rng.integers(size), 0, w - size))
+            y0 = int(np.clip(cy - rng.integers(size), 0, h - size))
+        else:
+            x0 = int(rng.integers(0, w - size + 1))
+            y0 = int(rng.integers(0, h - size + 1))
+        sl = (slice(y0, y0 + size), slice(x0, x0 + size))
+        rgb = im.rgb[sl].astype(np.float32) / 255.0
+        idx = im.inst[sl].astype(np.int64)
+        heat = im.heat[sl].astype(np.float32)
+        m = idx >= 0
+        reg = np.zeros((6, size, size), np.float32)
+        b = im.boxes[idx[m]]
+        kp = im.kp[idx[m]]
+        gx = xx[m] + x0
+        gy = yy[m] + y0
+        reg[0][m] = gx - b[:, 0]
+        reg[1][m] = gy - b[:, 1]
+        reg[2][m] = b[:, 2] - gx
+        reg[3][m] = b[:, 3] - gy
+        reg[4][m] = kp[:, 0] - gx
+        reg[5][m] = kp[:, 1] - gy
+        if augment:
+            rgb = np.clip(rgb * rng.uniform(0.8, 1.2), 0, 1)
+            if rng.random() < 0.5:
+                rgb = rgb[:, ::-1]
+                heat = heat[:, ::-1]
+                m = m[:, ::-1]
+                # mirrored column x' = S-1-x; inclusive/exclusive edges: l' = r - 1, r' = l + 1
+                reg = reg[:, :, ::-1][[2, 1, 0, 3, 4, 5]]
+                reg[0] -= 1.0
+                reg[2] += 1.0
+                reg[4] = -reg[4]
+                reg *= m
+        X[k] = rgb.transpose(2, 0, 1)
+        H[k] = heat
+        R[k] = reg
+        M[k] = m
+    return X, H, R, M
+
+
+def losses(out, heat, reg, mask):  # noqa: ANN001, ANN201 - torch tensors
+    """``(total, focal, box L1, offset L1)``: CenterNet focal loss + masked L1 (box weight 1)."""
+    import torch
+
+    p = torch.sigmoid(out[:, 0]).clamp(1e-4, 1 - 1e-4)
+    pos = (heat >= 0.999).float()
+    npos = pos.sum().clamp(min=1.0)
+    lp = -(torch.log(p) * (1 - p) ** 2 * pos).sum()
+    ln = -(torch.log(1 - p) * p**2 * (1 - heat) ** 4 * (1 - pos)).sum()
+    focal = (lp + ln) / npos
+    msum = mask.sum().clamp(min=1.0)
+    m = mask.unsqueeze(1)
+    box = (torch.abs(out[:, 1:5] - reg[:, :4]) * m).sum() / msum / 4
+    off = (torch.abs(out[:, 5:7] - reg[:, 4:6]) * m).sum() / msum / 2
+    return focal + box + off, focal, box, off
+
+
+# ------------------------------------------------------------------------------------------------
+# training loop, checkpoints, export
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class CnnTrainConfig:
+    steps: int = 3000
+    batch: int = 12
+    crop: int = 96
+    lr: float = 2e-3
+    seed: int = 0
+    c1: int = 12
+    c2: int = 24
+    min_area: int = 4
+    heat_sigma: float = 1.0
+    seed_fraction: float = 0.75
+    #: evaluate the held-out loss every this many steps (and write the checkpoint)
+    val_every: int = 250
+    val_crops: int = 96
+    threads: int = 1
+    extra: dict = field(default_factory=dict)
+
+
+def _state_to_numpy(net, opt, step: int) -> tuple[dict, dict]:  # noqa: ANN001
+    t = {f"model.{k}": v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()}
+    if opt is not None:
+        for i, st in opt.state_dict()["state"].items():
+            for k, v in st.items():
+                t[f"opt.{i}.{k}"] = np.asarray(v.detach().cpu().numpy() if hasattr(v, "numpy") else v, np.float32)
+    return t, {"step": str(step)}
+
+
+def save_checkpoint(path: Path, net, opt, step: int, cfg: CnnTrainConfig, history: list) -> None:  # noqa: ANN001
+    """Model + Adam state + step + history as one safetensors file (atomic)."""
+    from dataclasses import asdict
+
+    from safetensors.numpy import save
+
+    from seedmap.io.atomic import atomic_write_bytes
+
+    t, meta = _state_to_numpy(net, opt, step)
+    meta.update({"seedmap_kind": "fast_cnn_checkpoint", "config": json.dumps(asdict(cfg)),
+                 "history": json.dumps(history)})
+    atomic_write_bytes(Path(path), save({k: np.ascontiguousarray(v) for k, v in t.items()}, metadata=meta))
+
+
+def load_checkpoint(path: Path, net, opt) -> tuple[int, list]:  # noqa: ANN001
+    """Restore ``net`` (and ``opt``) from :func:`save_checkpoint`; returns ``(step, history)``."""
+    import torch
+    from safetensors import SafetensorError, safe_open
+
+    try:
+        with safe_open(str(path), framework="numpy") as fh:
+            meta = dict(fh.metadata() or {})
+            t = {k: fh.get_tensor(k) for k in fh.keys()}
+    except (SafetensorError, OSError, ValueError) as e:
+        raise InputError(f"not a readable safetensors checkpoint ({str(e).splitlines()[0][:100]})", path) from None
+    if meta.get("seedmap_kind") != "fast_cnn_checkpoint":
+        raise InputError("not a fast-cnn training checkpoint", path)
+    net.load_state_dict({k[6:]: torch.from_numpy(v) for k, v in t.items() if k.startswith("model.")})
+    if opt is not None:
+        sd = opt.state_dict()
+        for key, v in t.items():
+            if key.startswith("opt."):
+                _, i, name = key.split(".", 2)
+                val = torch.from_numpy(v)
+                sd["state"].setdefault(int(i), {})[name] = val.reshape(()) if name == "step" else val
+        opt.load_state_dict(sd)
+    return int(meta.get("step", 0)), json.loads(meta.get("history", "[]"))
+
+
+def export_onnx(net, path: Path, info: dict | None = None) -> Path:  # noqa: ANN001
+    """Write the network as ONNX (dynamic batch/height/width) with ``info`` as metadata (atomic)."""
+    import io
+
+    import onnx
+    import torch
+
+    from seedmap.io.atomic import atomic_write_bytes
+
+    net = net.eval()
+    x = torch.zeros(1, 3, 64, 64)
+    buf = io.BytesIO()
+    with torch.no_grad():
+        torch.onnx.export(net, (x,), buf, input_names=["image"], output_names=["out"], opset_version=17,
+                          dynamic_axes={"image": {0: "n", 2: "h", 3: "w"}, "out": {0: "n", 2: "h", 3: "w"}},
+                          dynamo=False)
+    model = onnx.load_from_string(buf.getvalue())
+    meta = {"seedmap_kind": "fast_cnn", "outputs": "heat_logit,l,t,r,b,dx,dy", "info": json.dumps(info or {})}
+    for k, v in meta.items():
+        e = model.metadata_props.add()
+        e.key, e.value = k, v
+    atomic_write_bytes(Path(path), model.SerializeToString())
+    return Path(path)
+
+
+def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str | Path] | None = None,
+              cfg: CnnTrainConfig | None = None, resume: bool = False, progress: bool = True) -> dict:
+    """Train :class:`SeedNet` on simulated ranges; write ``out/fast_cnn.onnx`` + checkpoint + metrics.
+
+    Held-out split: ``val_sets`` when given, else the last frame of every training set (its left
+    and right image). ``resume`` continues from ``out/checkpoint.safetensors``. Returns the
+    metrics dict (also written to ``out/train_metrics.json``).
+    """
+    import torch
+
+    from seedmap.io.atomic import atomic_write_text
+
+    cfg = cfg or CnnTrainConfig()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(max(1, int(cfg.threads)))
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    if val_sets:
+        tr = load_training_images(train_sets, None, cfg.min_area, cfg.heat_sigma, progress)
+        va = load_training_images(val_sets, None, cfg.min_area, cfg.heat_sigma, progress)
+    else:
+        fr_tr, fr_va = {}, {}
+        for d in train_sets:
+            n = len(SeedmapDataset(d))
+            if n < 2:
+                raise InputError("needs at least 2 frames for a held-out split (or pass --val)", d)
+            fr_tr[str(d)] = range(n - 1)
+            fr_va[str(d)] = [n - 1]
+        tr = load_training_images(train_sets, fr_tr, cfg.min_area, cfg.heat_sigma, progress)
+        va = load_training_images(train_sets, fr_va, cfg.min_area, cfg.heat_sigma, progress)
+    vrng = np.random.default_rng(cfg.seed + 1)
+    vbatch = [torch.from_numpy(np.ascontiguousarray(a))
+              for a in crop_batch(va, cfg.val_crops, cfg.crop, vrng, cfg.seed_fraction, augment=False)]
+
+    net = build_net(cfg.c1, cfg.c2)
+    opt = torch.optim.Adam(net.parameters(), cfg.lr)
+    ck = out / "checkpoint.safetensors"
+    step, history = 0, []
+    if resume:
+        if not ck.is_file():
+            raise InputError("no checkpoint to resume from", ck)
+        step, history = load_checkpoint(ck, net, opt)
+        rng = np.random.default_rng([cfg.seed, step])
+
+    def set_lr(s: int) -> None:
+        # cosine decay to 3 % of lr over cfg.steps (a function of the step, so resume continues it)
+        f = 0.5 * (1 + np.cos(np.pi * min(s, cfg.steps) / cfg.steps)) * 0.97 + 0.03
+        for gr in opt.param_groups:
+            gr["lr"] = cfg.lr * f
+
+    t_cpu0 = time.process_time()
+    t_wall0 = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.steps, initial=step, desc="train fast-cnn", unit="step")
+    run = []
+
+    def validate() -> float:
+        net.eval()
+        with torch.no_grad():
+            v = losses(net(vbatch[0]), vbatch[1], vbatch[2], vbatch[3])
+        net.train()
+        return [float(a) for a in v]
+
+    prev_cpu = sum(h.get("cpu_s", 0.0) for h in history[-1:]) if history else 0.0
+    while step < cfg.steps:
+        x, hm, reg, m = (torch.from_numpy(np.ascontiguousarray(a))
+                         for a in crop_batch(tr, cfg.batch, cfg.crop, rng, cfg.seed_fraction))
+        set_lr(step)
+        loss, *_ = losses(net(x), hm, reg, m)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        run.append(float(loss.detach()))
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(loss=f"{np.mean(run[-50:]):.3f}")
+        if step % cfg.val_every == 0 or step == cfg.steps:
+            v = validate()
+            history.append({"step": step, "train_loss": float(np.mean(run[-cfg.val_every:])), "val_loss": v[0],
+                            "val_focal": v[1], "val_box_l1_px": v[2], "val_offset_l1_px": v[3],
+                            "cpu_s": prev_cpu + time.process_time() - t_cpu0})
+            save_checkpoint(ck, net, opt, step, cfg, history)
+    if bar is not None:
+        bar.close()
+    from dataclasses import asdict
+
+    info = {"train_sets": [str(d) for d in train_sets], "val_sets": [str(d) for d in (val_sets or [])],
+            "config": asdict(cfg), "steps": step,
+            "train_images": len(tr), "val_images": len(va),
+            "cpu_s": prev_cpu + time.process_time() - t_cpu0,
+            "wall_s_this_run": time.perf_counter() - t_wall0,
+            "final": history[-1] if history else None}
+    export_onnx(net, out / "fast_cnn.onnx", info)
+    metrics = {**info, "history": history}
+    atomic_write_text(out / "train_metrics.json", json.dumps(metrics, indent=1))
+    return metrics
