@@ -47,7 +47,8 @@ def test_simulate_reconstruct_count_end_to_end(tmp_path, monkeypatch):
         assert (data / f).is_file(), f
     assert _run(["reconstruct", str(data), "--register", "seeds", "--out", str(res), "-q",
                  "--set", "detector_overrides=[gt.min_area_px=6]"], monkeypatch) == 0
-    for f in ("config.yaml", "metrics.json", "cloud.ply", "seeds.csv", "poses_tum.txt", "report.md"):
+    for f in ("config.yaml", "metrics.json", "cloud.ply", "seeds.csv", "poses_tum.txt", "report.md",
+              "detections.csv", "calib.yaml"):  # the last two: `seedmap count` with the multiview method
         assert (res / f).is_file(), f
     m = json.loads((res / "metrics.json").read_text())
     assert m["seed_count"] > 50 and m["oracle_detector"]
@@ -57,3 +58,6 @@ def test_simulate_reconstruct_count_end_to_end(tmp_path, monkeypatch):
     assert _run(["count", str(res), "--set", "count.min_observations=1", "--out", str(tmp_path / "c")],
                 monkeypatch) == 0
     assert json.loads((tmp_path / "c" / "count.json").read_text())["seed_count"] >= m["seed_count"]
+    # the 3D de-duplication methods still count from the same folder
+    assert _run(["count", str(res), "--set", "count.method=rays", "--out", str(tmp_path / "c2")], monkeypatch) == 0
+    assert json.loads((tmp_path / "c2" / "count.json").read_text())["seed_count"] > 0
