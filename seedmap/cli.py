@@ -628,7 +628,8 @@ def count_cmd(
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write seeds.csv + count.json to this new folder."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out folder."),
 ) -> None:
-    """Seed count of a reconstruction (re-runs the 3D de-duplication, e.g. with --set count.bandwidth=...)."""
+    """Seed count of a reconstruction, re-run from its folder (default method multiview on detections.csv;
+    e.g. --set count.mv_link_px=2.5, or --set count.method=rays for the 3D de-duplication)."""
     import json
 
     import numpy as np
