@@ -12,6 +12,13 @@ Lighting: a single flash on the rig (a small disc, so shadows are soft), inverse
 an extra fade to black beyond ``imaging.light_cutoff`` (flash imaging: the far background is dark),
 Lambertian + Blinn-Phong specular, baked per-seed ambient occlusion. Sensor: exposure jitter,
 vignetting, optical blur, shot + read noise, sRGB gamma, optional motion blur and JPEG.
+
+Cost-saving approximations (labels, depth and instance tables stay exact: they come from the
+pixel-centre rays only): flash-shadow rays are traced on every ``SHADOW_STRIDE``-th pixel of every
+``SHADOW_STRIDE``-th row and spread edge-aware to the pixels that see the same object (a pixel with no
+such sample traces its own); anti-aliasing sub-samples are not traced where the ray provably stays
+inside the pixel's seed (``_inside_seed``) and are traced only against the objects the pixel and the
+pixels it lies towards see. Flash samples and sensor noise use separate random streams.
 """
 
 from __future__ import annotations
@@ -878,6 +885,14 @@ def _inside_seed(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray,
     """True where the ray ``o + t d`` (t > 0) meets seed ``sid``'s ellipsoid shrunk by ``SEED_INRADIUS``
     (panicle ``obj``, at this frame's wind pose), which lies inside the seed's triangle mesh: such a
     ray meets that seed's mesh."""
+    return np.isfinite(_ellipsoid_entry(fs, o, d, sid, obj, (SEED_INRADIUS,))[0])
+
+
+def _ellipsoid_entry(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray, obj: np.ndarray,
+                     scales: tuple[float, ...]) -> list[np.ndarray]:
+    """Per scale, the distance (m, float32) at which the ray ``o + t d`` enters seed ``sid``'s
+    ellipsoid scaled by it (panicle ``obj`` at this frame's wind pose), inf where it misses or the
+    seed is behind."""
     f32 = fs.f32
     n = len(d)
     o_r = np.empty((n, 3), np.float32)
@@ -888,7 +903,7 @@ def _inside_seed(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray,
         o_r[sel] = _xf(np.broadcast_to(o, (int(sel.sum()), 3)), Di[:3, :3], Di[:3, 3])
         d_r[sel] = _xf(d[sel], Di[:3, :3])
     A = f32["axes"][sid]  # (n, 3, 3): columns are the seed's local axes
-    inv_r = 1.0 / (f32["radii"][sid] * np.float32(SEED_INRADIUS))
+    inv_r = 1.0 / f32["radii"][sid]
     # start the ray at its closest approach to the seed centre (well conditioned: millimetres, not
     # the camera's metres); the seed is ahead when that point is
     dp = o_r - f32["xyz"][sid]
@@ -898,9 +913,15 @@ def _inside_seed(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray,
     qd = np.einsum("nij,ni->nj", A, d_r) * inv_r
     a = _dot(qd, qd)
     b = _dot(q0, qd)
-    c = _dot(q0, q0) - 1
-    disc = b * b - a * c
-    return (disc > 0) & (tc > 0)
+    q2 = _dot(q0, q0)
+    out = []
+    for sc in scales:  # |q0 + t qd|^2 = sc^2
+        disc = b * b - a * (q2 - np.float32(sc * sc))
+        ok = (disc > 0) & (tc > 0)
+        t = np.full(n, np.inf, np.float32)
+        t[ok] = tc[ok] + (-b[ok] - np.sqrt(disc[ok])) / a[ok]
+        out.append(t)
+    return out
 
 
 def _camera_dirs(world: World, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
