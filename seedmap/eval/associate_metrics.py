@@ -14,6 +14,7 @@ them; detectors without ids cannot be scored).
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -97,6 +98,10 @@ class AssociationReport:
     stereo: dict
     temporal: dict
     per_frame: list[dict] = field(default_factory=list)
+    #: mean CPU ms per frame of the association (detection excluded): ``stereo`` = the matcher's
+    #: stereo step (with ``stereo_carry`` it contains the temporal matching of both images, listed
+    #: separately as ``temporal_left`` / ``temporal_right``), ``temporal`` = the ``match_temporal`` call
+    cpu_ms_per_frame: dict = field(default_factory=dict)
 
 
 def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str = "seeds", config=None,
@@ -115,15 +120,22 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
     sg, tg = stereo_gate(ds.calib.width, cfg.gates), temporal_gate(ds.calib.width, cfg.gates)
     st_tot, tm_tot = MatchCounts(), MatchCounts()
     rows = []
+    cpu: dict[str, list[float]] = {}
     prev = None
     with _progress(progress, n, f"associate {matcher}") as advance:
         for i in range(n):
             f = m.features(ds[i])
+            cpu.setdefault("stereo", []).append(f.timings_ms.get("stereo_match_cpu", np.nan))
+            for k in ("temporal_left_cpu", "temporal_right_cpu"):
+                if k in f.timings_ms:
+                    cpu.setdefault(k[:-4], []).append(f.timings_ms[k])
             s = score_matches(f.stereo, f.seed_ids_left, f.seed_ids_right, f.kp_left, f.kp_right, sg)
             st_tot.add(s)
             row = {"frame": i, "stereo": s.summary()}
             if prev is not None:
+                c0 = time.process_time()
                 tmatch = m.match_temporal(prev, f)
+                cpu.setdefault("temporal", []).append((time.process_time() - c0) * 1e3)
                 t = score_matches(tmatch, prev.seed_ids_left, f.seed_ids_left, prev.kp_left, f.kp_left, tg)
                 tm_tot.add(t)
                 row["temporal"] = t.summary()
@@ -131,7 +143,14 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
             prev = f
             advance()
     return AssociationReport(str(dataset), detector if det is not None else "", matcher, n,
-                             st_tot.summary(), tm_tot.summary(), rows)
+                             st_tot.summary(), tm_tot.summary(), rows, _cpu_summary(cpu, n))
+
+
+def _cpu_summary(cpu: dict[str, list[float]], frames: int) -> dict:
+    """Mean CPU ms per frame of each step, and ``total`` = stereo + temporal per frame."""
+    out = {k: float(np.nansum(v)) / max(frames, 1) for k, v in cpu.items()}
+    out["total"] = out.get("stereo", 0.0) + out.get("temporal", 0.0)
+    return out
 
 
 def write_report(rep: AssociationReport, path: Path) -> None:

@@ -71,10 +71,17 @@ class SlamAssociationConfig(SemanticConfig):
     field prior (``refine="field"``, see seedmap.associate.semantic) with the constant-velocity
     temporal prediction. The paper's method unchanged is
     ``--set association.refine=none --set association.temporal_prediction=false``; the session-1
-    default was ``--set association.refine=consensus``."""
+    default was ``--set association.refine=consensus``.
+
+    ``--set association.stereo_carry=true`` adds the stereo-temporal loop (stereo carried through
+    the left and right temporal matches, parallax test, loop check of the temporal matches): much
+    higher stereo precision, but it is *not* the default because the SLAM trajectory gets worse with
+    it (1 m range, gt detector: ATE 11.6 vs 5.4 mm, see the module docstring of
+    seedmap.associate.semantic)."""
 
     refine: Literal["none", "consensus", "field"] = "field"
     temporal_prediction: bool = True
+    stereo_carry: bool = False
 
 
 class SlamConfig(ConfigModel):
