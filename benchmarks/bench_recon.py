@@ -11,7 +11,9 @@ and seeds (``--modes``), with each detector of ``--detectors`` (default gt), cou
 count method (``multiview`` on the 2D detections, cached per panicle in ``cache/pSEED_dets.npz``),
 and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench/DETECTOR/``.
 The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left out of the means).
-Copies of the summaries of the last reported run: ``benchmarks/results/bench_recon_eval_{gt,fast}.json``.
+Copies of the summaries of the last reported run: ``benchmarks/results/bench_recon_eval_{gt,fast,fast-classic}.json``
+(``fast``: session-2 reconstructions re-counted with ``--recount``, so its 3D methods and naive baseline use the
+session-2 detector's observations; ``fast-classic``: a full run with today's classical fast detector).
 """
 
 from __future__ import annotations
