@@ -113,8 +113,10 @@ def detect_cmd(
     dataset: Path = typer.Argument(..., help="Dataset folder (seedmap layout or any supported format)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist unless --overwrite)."),
     detector: str = typer.Option("default", "--detector", "-d",
-                                 help="gt (ORACLE, simulated data) | fast | frcnn-pix2pix | default."),
-    weights: Optional[Path] = typer.Option(None, "--weights", help="Weights (.safetensors) of the learned detector."),
+                                 help="gt (ORACLE, simulated data) | fast (CNN if shipped) | fast-classic | "
+                                      "fast-cnn | frcnn-pix2pix | default."),
+    weights: Optional[Path] = typer.Option(None, "--weights",
+                                           help="Weights: .safetensors of frcnn-pix2pix, .onnx of fast-cnn."),
     overlay: bool = typer.Option(False, "--overlay", help="Also write PNGs with the fitted ellipses drawn."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output folder."),
     config: Optional[Path] = ConfigOpt,

@@ -21,14 +21,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seedmap.detect.base import Detector, check_image, register_detector
+from seedmap.detect.base import Detector, check_image
 from seedmap.detect.config import CnnConfig, FastConfig
 from seedmap.errors import ConfigError, InputError
 from seedmap.records import Detections
 
 
 def default_cnn_path() -> Path:
-    """The shipped network (trained on simulated ranges of seeds 1 and 31-35; see weights/README)."""
+    """The shipped network (trained on the simulated ranges of seeds 1 and 31-35, held-out seed 36)."""
     return Path(__file__).with_name("weights") / "fast_cnn.onnx"
 
 
@@ -121,7 +121,7 @@ def decode(out: np.ndarray, threshold: float, valid: tuple[int, int, int, int], 
 class CnnDetector(Detector):
     """CenterNet-style CNN in onnxruntime on gated tiles; see the module docstring."""
 
-    name = "fast"
+    name = "fast-cnn"
 
     def __init__(self, config: CnnConfig | None = None, fast: FastConfig | None = None,
                  weights: str | Path | None = None) -> None:
@@ -187,10 +187,3 @@ class CnnDetector(Detector):
         score = 1.0 / (1.0 + np.exp(-logit))
         return Detections(boxes=boxes, scores=score, ellipses=ell)
 
-
-def _factory(dataset=None, weights=None, config=None) -> CnnDetector:  # noqa: ANN001
-    return CnnDetector(config.cnn if config is not None else None, config.fast if config is not None else None,
-                       weights)
-
-
-register_detector("fast-cnn", _factory, "small CenterNet-style CNN on gated tiles, onnxruntime on CPU")

@@ -57,9 +57,10 @@ class FastConfig(ConfigModel):
     #: keep candidates whose refiner seed probability is at least this
     refine_threshold: float = 0.5
     ellipse: Literal["moments", "contour"] = "moments"
-    #: ``fast`` runs the small CNN (section ``cnn``, seedmap.detect.cnn) instead of the classical
-    #: pipeline above when its weights exist; ``fast-classic`` always runs the classical one
-    use_cnn: bool = True
+    #: ``fast`` runs the small CNN (section ``cnn``, seedmap.detect.cnn; also by name ``fast-cnn``)
+    #: instead of the classical pipeline above when its weights exist; ``fast-classic`` always runs the
+    #: classical one. Off: the CNN does not beat the classical detector on held-out F1 (session 3)
+    use_cnn: bool = False
 
 
 class CnnConfig(ConfigModel):
@@ -74,7 +75,7 @@ class CnnConfig(ConfigModel):
     #: ONNX weights; None = the shipped seedmap/detect/weights/fast_cnn.onnx
     weights: str | None = None
     #: keep heatmap peaks with seed probability at least this
-    threshold: float = 0.35
+    threshold: float = 0.45
     #: tile side (px) at the input resolution; 0 = whole image in one pass
     tile: int = 48
     #: context added around every tile (px; the network's receptive-field radius is ~10 px)
@@ -87,11 +88,12 @@ class CnnConfig(ConfigModel):
     gate_min_px: int = 4
     #: box edges and keypoint averaged over the peak's 3x3 neighbours weighted by
     #: sigmoid(heat) ** smooth (0 = the peak pixel's own prediction)
-    smooth: float = 0.0
+    smooth: float = 4.0
     #: tiles per onnxruntime call
     batch: int = 32
-    #: onnxruntime intra-op threads (0 = onnxruntime's default, all cores)
-    threads: int = 0
+    #: onnxruntime intra-op threads (0 = onnxruntime's default: all cores, which spin-wait and cost
+    #: ~3x the CPU on a busy 2-core machine)
+    threads: int = 1
 
 
 class LearnedConfig(ConfigModel):

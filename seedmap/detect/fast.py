@@ -217,7 +217,16 @@ def _factory(dataset=None, weights=None, config=None) -> Detector:
     return FastDetector(fc)
 
 
-register_detector("fast", _factory, "seed detector for CPU: the small CNN (fast-cnn) when its shipped weights "
-                  "exist, else the classical one (fast-classic) (default)")
+def _cnn_factory(dataset=None, weights=None, config=None) -> Detector:
+    from seedmap.detect.cnn import CnnDetector
+
+    return CnnDetector(config.cnn if config is not None else None, config.fast if config is not None else None,
+                       weights)
+
+
+register_detector("fast", _factory, "seed detector for CPU: the classical one (fast-classic), or the small CNN "
+                  "(fast-cnn) with fast.use_cnn=true (default)")
 register_detector("fast-classic", _classic_factory,
                   "classical OpenCV blob + watershed detector + patch refiner (session 2), real-time on CPU")
+register_detector("fast-cnn", _cnn_factory, "small CenterNet-style CNN on gated tiles (onnxruntime, CPU); "
+                  "weights: --weights or cnn.weights, else the shipped fast_cnn.onnx")

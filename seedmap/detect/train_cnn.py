@@ -355,13 +355,20 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     vbatch = [torch.from_numpy(np.ascontiguousarray(a))
               for a in crop_batch(va, cfg.val_crops, cfg.crop, vrng, cfg.seed_fraction, augment=False)]
 
-    net = build_net(cfg.c1, cfg.c2)
-    opt = torch.optim.Adam(net.parameters(), cfg.lr)
     ck = out / "checkpoint.safetensors"
-    step, history = 0, []
     if resume:
         if not ck.is_file():
             raise InputError("no checkpoint to resume from", ck)
+        from safetensors import safe_open
+
+        with safe_open(str(ck), framework="numpy") as fh:
+            old = json.loads((fh.metadata() or {}).get("config", "{}"))
+        # the architecture comes from the checkpoint, not from the command line
+        cfg.c1, cfg.c2 = int(old.get("c1", cfg.c1)), int(old.get("c2", cfg.c2))
+    net = build_net(cfg.c1, cfg.c2)
+    opt = torch.optim.Adam(net.parameters(), cfg.lr)
+    step, history = 0, []
+    if resume:
         step, history = load_checkpoint(ck, net, opt)
         rng = np.random.default_rng([cfg.seed, step])
 
