@@ -143,3 +143,21 @@ def test_rendered_range_loop_beats_per_frame_stereo(tiny_range):
     assert loop.stereo["recall"] > field.stereo["recall"]
     assert loop.temporal["precision"] >= field.temporal["precision"]
     assert loop.cpu_ms_per_frame["temporal_right"] > 0  # the right images were matched in time
+
+
+def test_frame_output_keeps_the_per_frame_stereo_and_the_loop_checked_temporal(seq):
+    rg, dets = seq
+    cfg = LOOP.model_copy(update={"stereo_output": "frame"})
+    m = SeedMatcher(rg.calib, cfg=cfg)
+    ref = SeedMatcher(rg.calib, cfg=LOOP.model_copy(update={"stereo_carry": False}))
+    prev = None
+    for d in dets[:4]:
+        f = m.features_from_detections(d)
+        g = ref.features_from_detections(d)
+        assert np.array_equal(f.stereo.idx_a, g.stereo.idx_a) and np.array_equal(f.stereo.idx_b, g.stereo.idx_b)
+        if prev is not None:
+            t = m.match_temporal(prev, f)
+            assert t is m._loop[2].temporal
+            assert len(m._loop[2].candidates) > 0.3 * len(f.stereo)  # the loop still runs internally
+            assert _precision(t, prev.seed_ids_left, f.seed_ids_left) > 0.97
+        prev = f

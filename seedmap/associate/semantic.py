@@ -129,9 +129,13 @@ oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stay
   temporal unchanged overall (0.97; among the temporal pairs with stereo at both ends - the ones
   the SLAM front-end uses - 0.996); the targets P >= 0.99 / R >= 0.90 are still not met. It is
   *not* the SLAM default: with it the SLAM trajectory of that range gets worse (ATE 11.6 vs
-  5.4 mm, a vertical drift over the first ten frames although the front-end finds 1.5x more
-  RANSAC-verified 3D matches; not understood yet - consistently carried, slightly biased centres
-  of partly occluded seeds are the suspect).
+  5.4 mm: a pitch / vertical-translation drift over the first ten frames although the front-end
+  finds 1.5x more RANSAC-verified 3D matches). The carried *stereo* is the cause: the loop's
+  temporal matches with the per-frame stereo give 5.1 mm (``stereo_output="frame"``, the loop then
+  only checks time). Suspect, not proven: the per-frame field rejects seeds whose disparity
+  disagrees with their neighbours' (partly occluded, centre biased in one image), the loop keeps
+  such a pair as long as the bias is consistent over time, and the back-end treats its
+  time-correlated errors as independent.
 
 The SLAM pipeline (``seedmap.slam.config.SlamAssociationConfig``) uses ``refine="field"`` and the
 constant-velocity prediction by default (``stereo_carry`` off).
@@ -209,8 +213,10 @@ class SemanticConfig(ConfigModel):
     parallax_frames: int = 4
     parallax_min_frames: int = 1
     #: "verified": only stereo pairs that passed the parallax test are output (untested new pairs
-    #: are kept by the matcher and carried, so they are output once tracked); "all": every pair
-    stereo_output: Literal["all", "verified"] = "verified"
+    #: are kept by the matcher and carried, so they are output once tracked); "all": every pair;
+    #: "frame": the loop's pairs stay internal (they check the temporal matches) and the output is
+    #: the per-frame ``field`` stereo of the whole frame (costs one more stereo matching)
+    stereo_output: Literal["all", "verified", "frame"] = "verified"
     #: temporal pairs whose shift disagrees with their disparity at t-1 are dropped (full-res px; 0 = off)
     temporal_parallax_tol_px: float = 4.5
     #: refinement passes of the field when it starts from the loop's fields (no coarse histogram)
@@ -1069,6 +1075,8 @@ def loop_associate(
         nc = len(carried)
         carried = Matches(carried.idx_a[out[:nc]], carried.idx_b[out[:nc]], carried.cost[out[:nc]])
         new = Matches(new.idx_a[out[nc:]], new.idx_b[out[nc:]], new.cost[out[nc:]])
+    if cfg.stereo_output == "frame":  # the loop only checks time; triangulation uses per-frame stereo
+        stereo = match_stereo_keypoints(kl, kr, width, gates, cfg, sums=sums_cur)
     cpu["stereo_loop_cpu"] = (time.process_time() - c2) * 1e3
     return LoopStep(stereo, temporal, tr, carried, new, n_rej, n_con, track, cpu, candidates)
 
