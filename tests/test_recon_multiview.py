@@ -161,3 +161,26 @@ def test_seedmap_count_recounts_multiview_from_a_results_folder(tmp_path):
     (tmp_path / "detections.csv").unlink()
     with pytest.raises(InputError, match="detections.csv"):
         recount(tmp_path, cfg)
+
+
+def test_second_linking_pass_recovers_seeds_the_tight_first_pass_missed():
+    # a too-tight first-pass tolerance (0.7 px against 0.5 px keypoint noise) leaves most seeds as
+    # single-view fragments; the second pass (wider tolerance, only between observations still short
+    # of min_observations views and only well-supported stereo matches) links them into seeds again
+    rng = np.random.default_rng(7)
+    views, poses, ids_l, countable, _ = scan(rng, noise_px=0.5, drop=0.3, clutter=0.05)
+    tight = count_multiview(views, poses, CALIB, CountConfig(mv_link_px=0.7)).count
+    cnt = count_multiview(views, poses, CALIB, CountConfig(mv_link_px=0.7, mv_relink_px=2.5,
+                                                           mv_relink_min_support=1.5))
+    assert tight < 0.5 * len(countable)
+    assert abs(cnt.count - len(countable)) <= 0.2 * len(countable), (cnt.count, len(countable))
+    # the relinked seeds are distinct true seeds (majority id of each), not one seed counted twice
+    lid = np.concatenate(ids_l)
+    major = [np.bincount(lid[(cnt.assignment == s) & (lid >= 0)]).argmax() for s in range(cnt.count)
+             if np.any((cnt.assignment == s) & (lid >= 0))]
+    assert len(set(major)) >= 0.97 * cnt.count
+    # matches below the second pass's support threshold are not relinked
+    assert count_multiview(views, poses, CALIB, CountConfig(mv_link_px=0.7, mv_relink_px=2.5,
+                                                            mv_relink_min_support=9.0)).count == tight
+    # off by default (mv_relink_px <= mv_link_px): the default count is the first pass alone
+    assert CountConfig().mv_relink_px <= CountConfig().mv_link_px

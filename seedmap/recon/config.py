@@ -106,6 +106,11 @@ class CountConfig(ConfigModel):
     mv_link_px: float = Field(2.0, gt=0, description="multiview: max reprojection error of a cross-view link (px)")
     mv_link_px_per_lag: float = Field(0.0, ge=0, description="multiview: link tolerance added per view of lag "
                                                               "beyond the first (px)")
+    mv_relink_px: float = Field(0.0, ge=0, description="multiview: second linking pass between observations "
+                                                         "still short of min_observations views, with this wider "
+                                                         "tolerance (px; <= mv_link_px = off)")
+    mv_relink_min_support: float = Field(2.5, ge=0, description="multiview: second pass links only stereo "
+                                                                 "matches with at least this support")
     mv_max_reproj_px: float = Field(2.5, gt=0, description="multiview: observations reprojecting farther from "
                                                            "their track's point are dropped (px)")
     mv_dedupe: float = Field(0.9, ge=0, description="multiview: join counted tracks closer than this many median "
