@@ -52,10 +52,9 @@ def test_shipped_cnn_finds_most_seeds(small):
     full = make_detector("fast-cnn", overrides=["cnn.tile=0"]).detect(img)
     mf, _ = frame_metrics(full, inst, min_gt_area=6)
     assert abs(mf.f1 - m.f1) < 0.03
-    # `fast` is the CNN on request only (it does not beat the classical detector on held-out F1);
-    # the session-2 detector is also there under its own name
-    assert isinstance(make_detector("fast", overrides=["fast.use_cnn=true"]), CnnDetector)
-    assert isinstance(make_detector("fast"), FastDetector)
+    # `fast` is the CNN (shipped weights); the session-2 detector by switch or by its own name
+    assert isinstance(make_detector("fast"), CnnDetector)
+    assert isinstance(make_detector("fast", overrides=["fast.use_cnn=false"]), FastDetector)
     assert isinstance(make_detector("fast-classic"), FastDetector)
 
 

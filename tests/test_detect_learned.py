@@ -156,7 +156,9 @@ def test_without_torch_clear_error():
         "import sys; sys.modules['torch'] = None; sys.modules['torchvision'] = None\n"
         "import seedmap.detect as d\n"
         "from seedmap.errors import SeedmapError\n"
-        "assert d.make_detector('fast').name == 'fast'\n"
+        "import numpy as np\n"
+        "det = d.make_detector('fast')\n"
+        "assert det.name == 'fast-cnn' and len(det.detect(np.zeros((96, 96, 3), np.uint8))) == 0\n"
         "try:\n    d.make_detector('frcnn-pix2pix')\nexcept SeedmapError as e:\n    print(e)\n"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)

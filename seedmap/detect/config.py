@@ -59,8 +59,8 @@ class FastConfig(ConfigModel):
     ellipse: Literal["moments", "contour"] = "moments"
     #: ``fast`` runs the small CNN (section ``cnn``, seedmap.detect.cnn; also by name ``fast-cnn``)
     #: instead of the classical pipeline above when its weights exist; ``fast-classic`` always runs the
-    #: classical one. Off: the CNN does not beat the classical detector on held-out F1 (session 3)
-    use_cnn: bool = False
+    #: classical one (held-out F1 det_s2 0.753 vs 0.740, det_s21 0.758 vs 0.694, session 3)
+    use_cnn: bool = True
 
 
 class CnnConfig(ConfigModel):
