@@ -10,6 +10,8 @@ Usage: ``python benchmarks/bench_recon.py [--dataset DIR | --views N --seed S]``
 and seeds (``--modes``), with each detector of ``--detectors`` (default gt), counts seeds with every
 count method (``multiview`` on the 2D detections, cached per panicle in ``cache/pSEED_dets.npz``),
 and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench/DETECTOR/``.
+``--count-set key=value ...`` overrides the multiview CountConfig (e.g. the optional second linking
+pass ``mv_relink_px=3 mv_relink_min_support=2.5``); the summary records them (``multiview_count_set``).
 The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left out of the means).
 Copies of the summaries of the last reported run: ``benchmarks/results/bench_recon_eval_{gt,fast,fast-classic}.json``
 (``fast``: session-2 reconstructions re-counted with ``--recount``, so its 3D methods and naive baseline use the
@@ -89,9 +91,11 @@ def _count_diagnostics(obs: dict, root: Path, gt_ids: np.ndarray) -> dict:
 
 
 def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, oracle: bool,
-                  kps: list | None = None, calib=None) -> dict:
+                  kps: list | None = None, calib=None, count_set: tuple[str, ...] = ()) -> dict:
     """Every count method on one reconstruction's observations (``multiview``: on the 2D
-    detections ``kps`` with the registered poses), against both references."""
+    detections ``kps`` with the registered poses, CountConfig overrides ``count_set`` key=value),
+    against both references."""
+    from seedmap.config import apply_overrides
     from seedmap.recon.config import CountConfig
     from seedmap.recon.count import count_multiview, count_seeds
 
@@ -100,7 +104,8 @@ def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, ora
     for meth in COUNT_METHODS:
         c1 = time.process_time()
         if meth == "multiview":
-            n = count_multiview(kps, obs["poses"], calib, CountConfig(method=meth)).count
+            mv_cfg = CountConfig(**apply_overrides({"method": meth}, count_set))
+            n = count_multiview(kps, obs["poses"], calib, mv_cfg).count
         else:
             n = count_seeds(obs["xyz"], obs["view"], obs["diam"], CountConfig(method=meth), origin=origin).count
         m[f"count_{meth}_cpu_s"] = time.process_time() - c1
@@ -143,7 +148,8 @@ def _summarize(rows: list[dict], modes: tuple[str, ...], det: str) -> dict:
 
 
 def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("gt",),
-             modes: tuple[str, ...] = ("fk", "full", "seeds"), recount: bool = False) -> dict:
+             modes: tuple[str, ...] = ("fk", "full", "seeds"), recount: bool = False,
+             count_set: tuple[str, ...] = ()) -> dict:
     """Accuracy of fk / full / seeds registration and of seed counting on simulated scans, per detector.
 
     Count references (both reported): ``gt_visible`` = centre visible and >= 12 px in >= 1 left view
@@ -169,7 +175,8 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                         obs = {k: z[k] for k in z.files}
                     kps, calib = _detections_cache(root, det, out / "cache" / f"p{s}_dets.npz")
                     row["modes"][mode].update(_count_fields(obs, row["gt_visible"], gt_countable_seeds(root, 12),
-                                                            root, row["oracle"] and mode == "seeds", kps, calib))
+                                                            root, row["oracle"] and mode == "seeds", kps, calib,
+                                                            count_set))
                 (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
                 rows.append(row)
                 continue
@@ -198,11 +205,13 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                        "poses": rec.poses}
                 np.savez_compressed(out / "cache" / f"p{s}_{mode}.npz", **obs)
                 kps, calib = _detections_cache(root, det, out / "cache" / f"p{s}_dets.npz")
-                m.update(_count_fields(obs, gt_vis, countable, root, rec.oracle and mode == "seeds", kps, calib))
+                m.update(_count_fields(obs, gt_vis, countable, root, rec.oracle and mode == "seeds", kps, calib,
+                                       count_set))
                 row["modes"][mode] = m
             (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
             rows.append(row)
         summary = _summarize(rows, modes if not recount else tuple(rows[0]["modes"]), det)
+        summary["multiview_count_set"] = list(count_set)
         (out / "summary.json").write_text(json.dumps(summary, indent=1))
         out_all[det] = summary
     return out_all
@@ -215,6 +224,8 @@ def main() -> None:
     ap.add_argument("--modes", nargs="+", default=["fk", "full", "seeds"], help="--eval: registration modes")
     ap.add_argument("--recount", action="store_true", help="--eval: only re-run the counting on the cached "
                                                           "observations of an earlier --eval run")
+    ap.add_argument("--count-set", nargs="*", default=[], help="--eval: CountConfig overrides (key=value) of "
+                                                               "the multiview count, e.g. mv_relink_px=3")
     ap.add_argument("--dataset", type=Path, default=None, help="existing arm scan dataset")
     ap.add_argument("--views", type=int, default=12)
     ap.add_argument("--seed", type=int, default=42)
@@ -222,7 +233,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.eval:
         print(json.dumps(run_eval(args.eval, detectors=tuple(args.detectors), modes=tuple(args.modes),
-                                         recount=args.recount), indent=1))
+                                         recount=args.recount, count_set=tuple(args.count_set)), indent=1))
         return
 
     from seedmap.recon.config import ReconConfig
