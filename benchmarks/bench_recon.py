@@ -8,7 +8,8 @@ Usage: ``python benchmarks/bench_recon.py [--dataset DIR | --views N --seed S]``
 ``--eval 100 101 ... 110`` instead runs the accuracy evaluation: simulates the missing scans
 (24 views, default errors) into ``data/recon_eval/pSEED``, reconstructs each in the modes fk, full
 and seeds (``--modes``), with each detector of ``--detectors`` (default gt), counts seeds with every
-count method (``multiview`` on the 2D detections, cached per panicle in ``cache/pSEED_dets.npz``),
+count method (``multiview`` on the 2D detections and the SGBM disparity at their left keypoints, cached
+per panicle in ``cache/pSEED_kps_HASH.npz``, HASH over the detector config and weights and the SGBM config),
 and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench/DETECTOR/``.
 ``--count-set key=value ...`` overrides the multiview CountConfig (e.g. the optional second linking
 pass ``mv_relink_px=3 mv_relink_min_support=2.5``); the summary records them (``multiview_count_set``).
@@ -34,29 +35,69 @@ COUNT_METHODS = ("density", "tracks", "rays", "multiview")
 METHODS_3D = ("density", "tracks", "rays")  # de-duplicate per-view 3D centres (multiview counts 2D detections)
 
 
+KPS_CACHE_VERSION = 2  # per-view keypoints + SGBM disparity at the left keypoints
+
+
+def _kps_cache_path(cache: Path, s: int, det: str) -> Path:
+    """Cache file of a panicle's 2D detections, keyed by a hash of everything that makes them: the
+    detector name and resolved config, its weights file (learned detectors), the SGBM/cloud config
+    (the keypoint disparities) and the cache format -- a retrained detector gets a fresh cache."""
+    import hashlib
+
+    from seedmap.detect.config import resolve_config
+    from seedmap.recon.config import ReconConfig
+
+    cfg = ReconConfig(detector=det)
+    h = hashlib.sha1(json.dumps([KPS_CACHE_VERSION, det, resolve_config(None, cfg.detector_overrides).model_dump(),
+                                 cfg.sgbm.model_dump(), cfg.cloud.model_dump()], sort_keys=True,
+                                default=str).encode())
+    if det == "fast":
+        from seedmap.detect.cnn import default_cnn_path
+
+        w = default_cnn_path()
+        if w.is_file():
+            h.update(w.read_bytes())
+    return cache / f"p{s}_kps_{h.hexdigest()[:10]}.npz"
+
+
+def _save_kps(path: Path, kps: list) -> None:
+    """Per-view StereoKeypoints (None = skipped view) -> npz."""
+    arrs: dict = {"n_views": len(kps)}
+    for i, k in enumerate(kps):
+        arrs[f"skipped_{i}"] = k is None
+        if k is not None:
+            arrs[f"left_{i}"], arrs[f"right_{i}"], arrs[f"size_{i}"] = k.left, k.right, k.left_size
+            arrs[f"disp_{i}"] = k.left_disp if k.left_disp is not None else np.full(len(k.left), np.nan)
+    np.savez_compressed(path, **arrs)
+
+
 def _detections_cache(root: Path, det: str, path: Path) -> tuple[list, object]:
-    """Per-view 2D detections (StereoKeypoints) of a scan with detector ``det``, cached in ``path``
-    (the detector runs only when the cache is missing), and the scan's calibration."""
+    """Per-view 2D detections (StereoKeypoints with the SGBM disparity at the left keypoints) of a
+    scan with detector ``det``, cached in ``path`` (detector and SGBM run only when it is missing),
+    and the scan's calibration."""
     from seedmap.io.seedmap_dataset import SeedmapDataset
     from seedmap.recon.count import StereoKeypoints
 
     ds = SeedmapDataset(root)
     if not path.is_file():
+        from tqdm import tqdm
+
         from seedmap.detect import make_detector
         from seedmap.recon.config import ReconConfig
+        from seedmap.recon.stereo import compute_disparity
 
         cfg = ReconConfig(detector=det)
         d = make_detector(det, dataset=ds, overrides=list(cfg.detector_overrides))
-        arrs = {}
-        for i in range(len(ds)):
-            sd = d.detect_stereo(ds[i])
-            for side in ("left", "right"):
-                arrs[f"{side}_ell_{i}"] = getattr(sd, side).ellipses
-                arrs[f"{side}_id_{i}"] = getattr(sd, side).seed_ids
-        np.savez_compressed(path, n_views=len(ds), **arrs)
+        kps = []
+        for i in tqdm(range(len(ds)), desc=f"{root.name} detections + SGBM", unit="view"):
+            fr = ds[i]
+            sd = d.detect_stereo(fr)
+            disp = compute_disparity(fr.left, fr.right, ds.calib, cfg.sgbm, cfg.cloud)
+            kps.append(StereoKeypoints.from_detections(sd.left, sd.right, disp))
+        _save_kps(path, kps)
     with np.load(path) as z:
-        kps = [StereoKeypoints(z[f"left_ell_{i}"][:, :2], z[f"right_ell_{i}"][:, :2],
-                               0.5 * (z[f"left_ell_{i}"][:, 2] + z[f"left_ell_{i}"][:, 3]))
+        kps = [None if bool(z[f"skipped_{i}"]) else
+               StereoKeypoints(z[f"left_{i}"], z[f"right_{i}"], z[f"size_{i}"], z[f"disp_{i}"])
                for i in range(int(z["n_views"]))]
     return kps, ds.calib
 
@@ -173,7 +214,7 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 for mode in row["modes"]:
                     with np.load(out / "cache" / f"p{s}_{mode}.npz") as z:
                         obs = {k: z[k] for k in z.files}
-                    kps, calib = _detections_cache(root, det, out / "cache" / f"p{s}_dets.npz")
+                    kps, calib = _detections_cache(root, det, _kps_cache_path(out / "cache", s, det))
                     row["modes"][mode].update(_count_fields(obs, row["gt_visible"], gt_countable_seeds(root, 12),
                                                             root, row["oracle"] and mode == "seeds", kps, calib,
                                                             count_set))
@@ -204,7 +245,10 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 obs = {"xyz": rec.obs_xyz, "view": rec.obs_view, "diam": rec.obs_diam, "seed_id": rec.obs_seed_id,
                        "poses": rec.poses}
                 np.savez_compressed(out / "cache" / f"p{s}_{mode}.npz", **obs)
-                kps, calib = _detections_cache(root, det, out / "cache" / f"p{s}_dets.npz")
+                kp_path = _kps_cache_path(out / "cache", s, det)
+                if not kp_path.is_file():  # the prepared views hold them already (no second detector run)
+                    _save_kps(kp_path, [v.keypoints if v is not None else None for v in prep.views])
+                kps, calib = _detections_cache(root, det, kp_path)
                 m.update(_count_fields(obs, gt_vis, countable, root, rec.oracle and mode == "seeds", kps, calib,
                                        count_set))
                 row["modes"][mode] = m

@@ -115,6 +115,13 @@ class CountConfig(ConfigModel):
                                                            "their track's point are dropped (px)")
     mv_dedupe: float = Field(0.9, ge=0, description="multiview: join counted tracks closer than this many median "
                                                     "seed diameters that share no view")
+    mv_surface_tol: float = Field(0.0, ge=0, description="multiview: drop stereo match candidates whose depth "
+                                                         "differs from the SGBM surface depth at the left keypoint "
+                                                         "by more than this (m; 0 = off; keypoints without valid "
+                                                         "SGBM are kept)")
+    mv_surface_front_tol: float | None = Field(None, ge=0, description="multiview: the same check for matches in "
+                                                                     "FRONT of the SGBM surface (m; None = "
+                                                                     "mv_surface_tol)")
     mv_min_depth: float = Field(0.2, gt=0, description="multiview: nearest seed depth considered (m)")
     mv_max_depth: float = Field(0.42, gt=0, description="multiview: farthest seed depth considered (m)")
 

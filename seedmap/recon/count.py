@@ -369,6 +369,7 @@ class StereoKeypoints:
     left: np.ndarray
     right: np.ndarray
     left_size: np.ndarray
+    left_disp: np.ndarray | None = None  # (N,) SGBM disparity at each left keypoint (px, NaN = none)
 
     def __post_init__(self) -> None:
         self.left = np.asarray(self.left, float).reshape(-1, 2)
@@ -376,11 +377,41 @@ class StereoKeypoints:
         self.left_size = np.asarray(self.left_size, float).reshape(-1)
         if len(self.left_size) != len(self.left):
             raise ValueError(f"StereoKeypoints: {len(self.left_size)} sizes for {len(self.left)} left keypoints")
+        if self.left_disp is not None:
+            self.left_disp = np.asarray(self.left_disp, float).reshape(-1)
+            if len(self.left_disp) != len(self.left):
+                raise ValueError(f"StereoKeypoints: {len(self.left_disp)} disparities for {len(self.left)} "
+                                 "left keypoints")
 
     @classmethod
-    def from_detections(cls, left, right) -> StereoKeypoints:
-        """From the left and right :class:`seedmap.records.Detections` of a view."""
-        return cls(left.keypoints, right.keypoints, 0.5 * (left.ellipses[:, 2] + left.ellipses[:, 3]))
+    def from_detections(cls, left, right, disparity: np.ndarray | None = None,
+                        disp_radius_px: int = 2) -> StereoKeypoints:
+        """From the left and right :class:`seedmap.records.Detections` of a view; with the view's
+        SGBM ``disparity`` map (px, NaN = invalid) also the surface disparity at every left keypoint
+        (:func:`keypoint_disparity`, for the ``mv_surface_tol`` check)."""
+        ld = None if disparity is None else keypoint_disparity(disparity, left.keypoints, disp_radius_px)
+        return cls(left.keypoints, right.keypoints, 0.5 * (left.ellipses[:, 2] + left.ellipses[:, 3]), ld)
+
+
+def keypoint_disparity(disparity: np.ndarray, uv: np.ndarray, radius_px: int = 2) -> np.ndarray:
+    """Median of the valid SGBM disparities (px) in the (2r+1)^2 window around each keypoint ``uv``
+    (N, 2) px; NaN where fewer than a quarter of the window is valid (SGBM often has no depth on a
+    seed-sized patch: no evidence then, rather than a wrong one)."""
+    uv = np.asarray(uv, float).reshape(-1, 2)
+    if len(uv) == 0:
+        return np.zeros(0)
+    H, W = disparity.shape[:2]
+    r = int(radius_px)
+    off = np.arange(-r, r + 1)
+    u = np.clip(np.round(uv[:, 0]).astype(np.int64)[:, None, None] + off[None, None, :], 0, W - 1)
+    v = np.clip(np.round(uv[:, 1]).astype(np.int64)[:, None, None] + off[None, :, None], 0, H - 1)
+    patch = np.asarray(disparity, float)[v, u].reshape(len(uv), -1)
+    valid = np.isfinite(patch)
+    out = np.full(len(uv), np.nan)
+    ok = valid.sum(axis=1) >= max(1, patch.shape[1] // 4)
+    if ok.any():
+        out[ok] = np.nanmedian(patch[ok], axis=1)
+    return out
 
 
 @dataclass
@@ -443,6 +474,18 @@ def _neighbour_views(k: int, V: int, max_off: int, circular: bool, both_sides: b
     return out
 
 
+def _surface_consistent(d_match: np.ndarray, d_sgbm: np.ndarray, calib, tol_behind: float,
+                        tol_front: float) -> np.ndarray:
+    """Surface-depth check of stereo match candidates: keep those whose depth (from the keypoint
+    disparity ``d_match``, px) lies at most ``tol_behind`` (m) behind and ``tol_front`` (m) in front
+    of the SGBM surface depth at the left keypoint (``d_sgbm``, px); candidates without a valid SGBM
+    disparity are kept (no evidence)."""
+    fb = calib.fx * calib.baseline
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dz = fb / d_match - fb / d_sgbm  # > 0: the match lies behind the visible surface
+    return ~(np.isfinite(d_sgbm) & (d_sgbm > 0) & ~((dz <= tol_behind) & (dz >= -tol_front)))
+
+
 def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw: np.ndarray, calib,
                     cfg: CountConfig) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """Step 1 (module docstring): per view, one-to-one left/right matches verified by the
@@ -461,6 +504,10 @@ def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw:
             out.append(empty)
             continue
         c = _stereo_candidates(kp.left, kp.right, d_lo, d_hi, cfg.mv_stereo_dv_px)
+        if len(c) and cfg.mv_surface_tol > 0 and kp.left_disp is not None:
+            c = c[_surface_consistent(kp.left[c[:, 0], 0] - kp.right[c[:, 1], 0], kp.left_disp[c[:, 0]],
+                                      calib, cfg.mv_surface_tol, cfg.mv_surface_tol if cfg.mv_surface_front_tol
+                                      is None else cfg.mv_surface_front_tol)]
         if len(c) == 0:
             out.append(empty)
             continue

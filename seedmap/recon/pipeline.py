@@ -144,7 +144,8 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         # seed ICP uses the measured front-surface points of the seeds: seen from neighbouring views
         # they are nearly the same points, while the radius push-back adds view-dependent errors
         geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.surface_xyz)
-        views.append(PreparedView(vc, so, geo, len(sdet.left), StereoKeypoints.from_detections(sdet.left, sdet.right)))
+        views.append(PreparedView(vc, so, geo, len(sdet.left),
+                                  StereoKeypoints.from_detections(sdet.left, sdet.right, disp)))
     if bar is not None:
         bar.close()
     if all(v is None for v in views):
@@ -258,16 +259,18 @@ def multiview_count_observations(kps: list[StereoKeypoints | None], poses: np.nd
 
 def detections_csv_text(kps: list[StereoKeypoints | None]) -> str:
     """All 2D detections of a reconstruction: view, side (0 = left, 1 = right), u, v (px), size (px;
-    mean full ellipse axis, left only, else 0) -- what ``seedmap count`` needs for ``multiview``."""
+    mean full ellipse axis, left only, else 0), SGBM disparity at the keypoint (px; left only, nan =
+    none) -- what ``seedmap count`` needs for ``multiview``."""
     rows = []
     for k, kp in enumerate(kps):
         if kp is None:
             continue
-        rows.append(np.column_stack([np.full(len(kp.left), k), np.zeros(len(kp.left)), kp.left, kp.left_size]))
+        ld = kp.left_disp if kp.left_disp is not None else np.full(len(kp.left), np.nan)
+        rows.append(np.column_stack([np.full(len(kp.left), k), np.zeros(len(kp.left)), kp.left, kp.left_size, ld]))
         rows.append(np.column_stack([np.full(len(kp.right), k), np.ones(len(kp.right)), kp.right,
-                                     np.zeros(len(kp.right))]))
-    a = np.concatenate(rows) if rows else np.zeros((0, 5))
-    return _csv("view,side,u,v,size_px", a, "%.6g")
+                                     np.zeros(len(kp.right)), np.full(len(kp.right), np.nan)]))
+    a = np.concatenate(rows) if rows else np.zeros((0, 6))
+    return _csv("view,side,u,v,size_px,sgbm_disp_px", a, "%.6g")
 
 
 def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints | None]:
@@ -282,7 +285,8 @@ def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints |
         raise InputError("detections.csv is malformed", p) from None
     if a.size and a.shape[1] < 5:
         raise InputError(f"detections.csv needs 5 columns, found {a.shape[1]}", p)
-    a = a.reshape(-1, 5)
+    ncol = a.shape[1] if a.size else 5
+    a = a.reshape(-1, ncol)
     view = a[:, 0].astype(np.int64)
     if len(view) and (view.min() < 0 or view.max() >= n_views):
         raise InputError(f"detections.csv refers to view {view.max()}, the poses have {n_views}", p)
@@ -293,7 +297,8 @@ def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints |
             out.append(None)
             continue
         left, right = sel & (a[:, 1] == 0), sel & (a[:, 1] == 1)
-        out.append(StereoKeypoints(a[left, 2:4], a[right, 2:4], a[left, 4]))
+        # column 6 (SGBM disparity at the left keypoint) is absent in files of older versions
+        out.append(StereoKeypoints(a[left, 2:4], a[right, 2:4], a[left, 4], a[left, 5] if ncol >= 6 else None))
     return out
 
 
