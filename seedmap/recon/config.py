@@ -122,6 +122,8 @@ class CountConfig(ConfigModel):
     mv_surface_front_tol: float | None = Field(None, ge=0, description="multiview: the same check for matches in "
                                                                      "FRONT of the SGBM surface (m; None = "
                                                                      "mv_surface_tol)")
+    mv_merge_px: float = Field(0.0, ge=0, description="multiview: first join keypoints of one image closer than "
+                                                       "this (px; duplicate detections of one seed; 0 = off)")
     mv_min_depth: float = Field(0.2, gt=0, description="multiview: nearest seed depth considered (m)")
     mv_max_depth: float = Field(0.42, gt=0, description="multiview: farthest seed depth considered (m)")
 

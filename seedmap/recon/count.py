@@ -474,6 +474,41 @@ def _neighbour_views(k: int, V: int, max_off: int, circular: bool, both_sides: b
     return out
 
 
+def _merge_components(xy: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components of points (px) closer than ``r``: (label per point, mean position per label)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(xy)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 2))
+    pr = cKDTree(xy).query_pairs(r, output_type="ndarray")
+    g = coo_matrix((np.ones(len(pr)), (pr[:, 0], pr[:, 1])), shape=(n, n)) if len(pr) else coo_matrix((n, n))
+    _, lab = connected_components(g, directed=False)
+    cnt = np.bincount(lab)
+    mean = np.column_stack([np.bincount(lab, weights=xy[:, i]) / cnt for i in range(2)])
+    return lab.astype(np.int64), mean
+
+
+def merge_close_keypoints(kp: StereoKeypoints, r_px: float) -> tuple[StereoKeypoints, np.ndarray]:
+    """Joins keypoints of one image closer than ``r_px`` (px; chains join too) into their mean --
+    duplicate detections of one seed; touching seeds are about one seed diameter apart, so ``r_px``
+    must stay well below the seed size in pixels. Left sizes and SGBM disparities are averaged
+    (NaN-aware). Returns the merged keypoints and the merged index of every original left keypoint."""
+    lab, left = _merge_components(kp.left, r_px)
+    _, right = _merge_components(kp.right, r_px)
+    n = len(left)
+    cnt = np.maximum(np.bincount(lab, minlength=n), 1)
+    size = np.bincount(lab, weights=kp.left_size, minlength=n) / cnt
+    disp = None
+    if kp.left_disp is not None:
+        ok = np.isfinite(kp.left_disp)
+        k = np.bincount(lab[ok], minlength=n)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            disp = np.where(k > 0, np.bincount(lab[ok], weights=kp.left_disp[ok], minlength=n) / k, np.nan)
+    return StereoKeypoints(left, right, size, disp), lab
+
+
 def _surface_consistent(d_match: np.ndarray, d_sgbm: np.ndarray, calib, tol_behind: float,
                         tol_front: float) -> np.ndarray:
     """Surface-depth check of stereo match candidates: keep those whose depth (from the keypoint
@@ -613,6 +648,18 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     V = len(views)
     if len(poses) != V:
         raise ValueError(f"{len(poses)} poses for {V} views")
+    if cfg.mv_merge_px > 0:
+        # step 0: duplicate detections of one seed (a detector firing twice on it) -> one keypoint
+        merged = [merge_close_keypoints(v, cfg.mv_merge_px) if v is not None else (None, np.zeros(0, np.int64))
+                  for v in views]
+        res = count_multiview([m[0] for m in merged], poses, calib, cfg.model_copy(update={"mv_merge_px": 0.0}),
+                              detail=detail)
+        cnt = res[0] if detail else res
+        n_m = np.array([len(m[0].left) if m[0] is not None else 0 for m in merged], np.int64)
+        off_m = np.concatenate([[0], np.cumsum(n_m)])
+        cnt.assignment = np.concatenate([cnt.assignment[off_m[k] + m[1]] for k, m in enumerate(merged)]
+                                        ) if V else np.zeros(0, np.int64)
+        return res
     from seedmap.geometry import invert
 
     Tcw = invert(poses)
