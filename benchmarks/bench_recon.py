@@ -14,9 +14,10 @@ and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench
 ``--count-set key=value ...`` overrides the multiview CountConfig (e.g. the optional second linking
 pass ``mv_relink_px=3 mv_relink_min_support=2.5``); the summary records them (``multiview_count_set``).
 The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left out of the means).
-Copies of the summaries of the last reported run: ``benchmarks/results/bench_recon_eval_{gt,fast,fast-classic}.json``
-(``fast``: session-2 reconstructions re-counted with ``--recount``, so its 3D methods and naive baseline use the
-session-2 detector's observations; ``fast-classic``: a full run with today's classical fast detector).
+Copies of the summaries of the last reported runs: ``benchmarks/results/bench_recon_eval_{gt,fast,fast-classic}.json``
+(``fast``: a full ``--modes seeds`` run with the CNN ``fast`` detector; ``fast-classic``: a full run with the
+classical fast detector); ``..._{gt,fast}_{surface5,merge3,merge3_surface5}.json``: ``--recount`` with
+``--count-set mv_surface_tol=0.005`` / ``mv_merge_px=3`` / both (``multiview`` only differs).
 """
 
 from __future__ import annotations
