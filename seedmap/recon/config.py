@@ -116,9 +116,10 @@ class CountConfig(ConfigModel):
     mv_dedupe: float = Field(0.9, ge=0, description="multiview: join counted tracks closer than this many median "
                                                     "seed diameters that share no view")
     mv_surface_tol: float = Field(0.0, ge=0, description="multiview: drop stereo match candidates whose depth "
-                                                         "differs from the SGBM surface depth at the left keypoint "
-                                                         "by more than this (m; 0 = off; keypoints without valid "
-                                                         "SGBM are kept)")
+                                                         "lies more than this behind (and, unless "
+                                                         "mv_surface_front_tol, in front of) the SGBM surface depth "
+                                                         "at the left keypoint (m; 0 = off; keypoints without valid "
+                                                         "SGBM keep all candidates)")
     mv_surface_front_tol: float | None = Field(None, ge=0, description="multiview: the same check for matches in "
                                                                      "FRONT of the SGBM surface (m; None = "
                                                                      "mv_surface_tol)")
