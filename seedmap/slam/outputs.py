@@ -56,7 +56,8 @@ def plot_topview(path: Path, est: Trajectory, gt: Trajectory | None, lm_xyz: np.
     ax.set_ylabel("y towards the row (m)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(title, fontsize=9)
-    ax.legend(loc="best", fontsize=8)
+    if ax.get_legend_handles_labels()[0]:  # nothing plotted (no frame, no GT): no empty legend
+        ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
