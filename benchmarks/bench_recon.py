@@ -16,7 +16,7 @@ pass ``mv_relink_px=3 mv_relink_min_support=2.5``); the summary records them (``
 The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left out of the means).
 Copies of the summaries of the last reported runs: ``benchmarks/results/bench_recon_eval_{gt,fast,fast-classic}.json``
 (``fast``: a full ``--modes seeds`` run with the CNN ``fast`` detector; ``fast-classic``: a full run with the
-classical fast detector); ``..._{gt,fast}_{surface5,merge3,merge3_surface5}.json``: ``--recount`` with
+classical fast detector); ``..._{gt,fast,fast-classic}_{surface5,merge3,merge3_surface5}.json``: ``--recount`` with
 ``--count-set mv_surface_tol=0.005`` / ``mv_merge_px=3`` / both (``multiview`` only differs).
 """
 
