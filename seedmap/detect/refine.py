@@ -114,17 +114,12 @@ class Refiner:
 
     @classmethod
     def load(cls, path: str | Path) -> Refiner:
-        from safetensors import SafetensorError, safe_open
+        from seedmap.io.tensors import read_safetensors
 
         p = Path(path)
         if not p.is_file():
             raise InputError("fast refiner weights not found", p)
-        try:
-            with safe_open(str(p), framework="numpy") as fh:
-                meta = dict(fh.metadata() or {})
-                t = {k: fh.get_tensor(k) for k in fh.keys()}
-        except (SafetensorError, OSError, ValueError) as e:
-            raise InputError(f"not a readable safetensors file ({str(e).splitlines()[0][:100]})", p) from None
+        t, meta = read_safetensors(p)
         if meta.get("seedmap_kind") != "fast_refiner":
             raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected fast_refiner", p)
         n = len([k for k in t if k.startswith("w")])

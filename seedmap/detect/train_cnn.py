@@ -275,14 +275,10 @@ def save_checkpoint(path: Path, net, opt, step: int, cfg: CnnTrainConfig, histor
 def load_checkpoint(path: Path, net, opt) -> tuple[int, list]:  # noqa: ANN001
     """Restore ``net`` (and ``opt``) from :func:`save_checkpoint`; returns ``(step, history)``."""
     import torch
-    from safetensors import SafetensorError, safe_open
 
-    try:
-        with safe_open(str(path), framework="numpy") as fh:
-            meta = dict(fh.metadata() or {})
-            t = {k: fh.get_tensor(k) for k in fh.keys()}
-    except (SafetensorError, OSError, ValueError) as e:
-        raise InputError(f"not a readable safetensors checkpoint ({str(e).splitlines()[0][:100]})", path) from None
+    from seedmap.io.tensors import read_safetensors
+
+    t, meta = read_safetensors(path, "checkpoint")
     if meta.get("seedmap_kind") != "fast_cnn_checkpoint":
         raise InputError("not a fast-cnn training checkpoint", path)
     net.load_state_dict({k[6:]: torch.from_numpy(v) for k, v in t.items() if k.startswith("model.")})
@@ -363,10 +359,9 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     if resume:
         if not ck.is_file():
             raise InputError("no checkpoint to resume from", ck)
-        from safetensors import safe_open
+        from seedmap.io.tensors import read_safetensors
 
-        with safe_open(str(ck), framework="numpy") as fh:
-            old = json.loads((fh.metadata() or {}).get("config", "{}"))
+        old = json.loads(read_safetensors(ck, "checkpoint")[1].get("config", "{}"))
         # the architecture comes from the checkpoint, not from the command line
         cfg.c1, cfg.c2 = int(old.get("c1", cfg.c1)), int(old.get("c2", cfg.c2))
     net = build_net(cfg.c1, cfg.c2)
