@@ -88,6 +88,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from seedmap.geometry import transform_points
 from seedmap.recon.config import CountConfig
 
 
@@ -444,7 +445,7 @@ class MultiViewDetail:
 
 def _project_world(calib, T_cam_world: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World points (N, 3) m -> left pixels (N, 2) and right columns (N,) of one view."""
-    return calib.project(X @ T_cam_world[:3, :3].T + T_cam_world[:3, 3])
+    return calib.project(transform_points(T_cam_world, X))
 
 
 def _stereo_candidates(L: np.ndarray, R: np.ndarray, d_lo: float, d_hi: float, dv: float) -> np.ndarray:
@@ -559,7 +560,7 @@ def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw:
         if len(c) == 0:
             out.append(empty)
             continue
-        Xw = calib.triangulate(kp.left[c[:, 0]], kp.right[c[:, 1], 0]) @ poses[k][:3, :3].T + poses[k][:3, 3]
+        Xw = transform_points(poses[k], calib.triangulate(kp.left[c[:, 0]], kp.right[c[:, 1], 0]))
         support = np.zeros(len(c))
         for _, m in _neighbour_views(k, V, cfg.mv_verify_views, cfg.circular, both_sides=True):
             if views[m] is None:
