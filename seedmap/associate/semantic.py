@@ -558,19 +558,8 @@ def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np
     if len(m) < 3:
         return fallback
     pa = ka[m.idx_a]
-    disp = kb[m.idx_b] - pa
-    kk = min(k + 1, len(m))
-    tree = cKDTree(pa)
-    _, nn = tree.query(pa, kk)
-    nn = np.asarray(nn).reshape(len(m), kk)
-    own = np.arange(len(m))[:, None]
-    is_self = nn == own
-    # drop the own match (first column unless duplicated positions), else the farthest neighbour
-    drop = np.where(is_self.any(1), is_self.argmax(1), kk - 1)
-    keep = np.ones_like(nn, bool)
-    keep[np.arange(len(m)), drop] = False
-    at_seed = np.median(disp[nn[keep].reshape(len(m), kk - 1)], axis=1)
-    _, near = tree.query(ka, 1)
+    at_seed = loo_local_median(pa, kb[m.idx_b] - pa, k)
+    _, near = cKDTree(pa).query(ka, 1)
     return at_seed[np.asarray(near).reshape(-1)]
 
 
@@ -903,6 +892,7 @@ def loo_local_median(pos: np.ndarray, val: np.ndarray, k: int) -> np.ndarray:
     _, nn = cKDTree(pos).query(pos, kk)
     nn = np.asarray(nn).reshape(n, kk)
     is_self = nn == np.arange(n)[:, None]
+    # drop the own point (first column unless positions repeat), else the farthest neighbour
     drop = np.where(is_self.any(1), is_self.argmax(1), kk - 1)
     keep = np.ones_like(nn, bool)
     keep[np.arange(n), drop] = False
