@@ -139,7 +139,10 @@ def eval_detect_cmd(
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Metrics JSON (default DETECTIONS/detect_metrics.json)."),
     iou: float = typer.Option(0.5, "--iou", help="Box IoU threshold for a true positive."),
     matching: str = typer.Option("greedy", "--matching", help="greedy | hungarian one-to-one matching."),
-    min_gt_area: int = typer.Option(0, "--min-gt-area", help="Ignore GT instances with fewer visible pixels."),
+    min_gt_area: Optional[int] = typer.Option(
+        None, "--min-gt-area",
+        help="Ignore GT instances with fewer visible pixels (default: the detectable-seed size, "
+             "10 px at 1434 px wide, scaled with the image: seedmap.detect.config; 0 scores every sliver)."),
     per_frame: bool = typer.Option(False, "--per-frame", help="Also print the per-frame table."),
 ) -> None:
     """Precision, recall, F1 (box IoU) and keypoint error (px) against GT, per frame and overall."""

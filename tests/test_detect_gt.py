@@ -30,8 +30,15 @@ def test_gt_keypoints_match_true_centres(ds, method):
     assert isinstance(sd, StereoDetections) and isinstance(sd.left, Detections)
     assert sd.index == 1
     inst = ds.gt_instances(1, "left")
-    # every instance with enough area is detected, with its seed id
-    assert set(sd.left.seed_ids) == set(inst.seed_id[inst.area >= 3])
+    # every instance of at least the detectable-seed size (scaled to this image) is detected, with
+    # its seed id, and no sliver below it
+    from seedmap.detect.config import min_visible_seed_px
+
+    a_min = min_visible_seed_px(ds.calib.width)
+    assert 0 < a_min < 10
+    assert set(sd.left.seed_ids) == set(inst.seed_id[inst.area >= a_min])
+    explicit = make_detector("gt", dataset=ds, overrides=["gt.min_area_px=3"]).detect_frame(1, "left")
+    assert set(explicit.seed_ids) == set(inst.seed_id[inst.area >= 3])
     pos = {s: k for k, s in enumerate(inst.seed_id)}
     k = np.array([pos[s] for s in sd.left.seed_ids])
     err = np.linalg.norm(sd.left.keypoints - inst.center_uv[k], axis=1)

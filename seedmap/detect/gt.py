@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.detect.base import Detector, register_detector
-from seedmap.detect.config import GtConfig
+from seedmap.detect.config import GtConfig, min_visible_seed_px
 from seedmap.detect.ellipse import fit_ellipses_labels
 from seedmap.errors import InputError, SeedmapError
 from seedmap.records import Detections, StereoDetections, StereoFrame
@@ -45,6 +45,15 @@ class GtDetector(Detector):
             raise InputError("dataset has no ground-truth instances (gt/instances/); "
                              "the gt oracle works on simulated datasets only", root)
 
+    def min_area_px(self, camera: str = "left", i: int = 0) -> float:
+        """Visible-pixel threshold of a keypoint: the configured one, else the detectable-seed size
+        (seedmap.detect.config.min_visible_seed_px) at this dataset's image width."""
+        if self.cfg.min_area_px is not None:
+            return float(self.cfg.min_area_px)
+        calib = getattr(self.dataset, "calib", None)
+        width = calib.width if calib is not None else self.dataset.gt_label_image(i, camera).shape[1]
+        return min_visible_seed_px(width)
+
     def detect_frame(self, i: int, camera: str = "left") -> Detections:
         """Oracle detections of frame ``i`` in ``camera`` (``left`` | ``right``)."""
         if camera not in ("left", "right"):
@@ -52,7 +61,7 @@ class GtDetector(Detector):
         inst = self.dataset.gt_instances(i, camera)
         if len(inst) == 0:
             return Detections()
-        keep = inst.area >= self.cfg.min_area_px
+        keep = inst.area >= self.min_area_px(camera, i)
         if self.cfg.only_center_visible:
             keep &= inst.center_visible
         labels = self.dataset.gt_label_image(i, camera)

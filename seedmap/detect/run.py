@@ -63,9 +63,13 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
 
 
 def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: str | Path | None = None,
-                    iou_threshold: float = 0.5, matching: str = "greedy", min_gt_area: int = 0,
+                    iou_threshold: float = 0.5, matching: str = "greedy", min_gt_area: float | None = None,
                     progress: bool = True):
-    """Evaluate a detections folder against a simulated dataset's GT; writes ``detect_metrics.json``."""
+    """Evaluate a detections folder against a simulated dataset's GT; writes ``detect_metrics.json``.
+
+    ``min_gt_area=None`` ignores GT slivers below the detectable-seed size at the dataset's width
+    (seedmap.detect.config.min_visible_seed_px, the same rule as the ``gt`` oracle); 0 scores all."""
+    from seedmap.detect.config import min_visible_seed_px
     from seedmap.eval.detect_metrics import evaluate_detections
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
@@ -77,6 +81,8 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
     if missing:
         raise InputError(f"detections refer to frame {missing[0][0]} but the dataset has {len(ds)} frames",
                          detections_dir)
+    if min_gt_area is None:
+        min_gt_area = min_visible_seed_px(ds.calib.width)
     m = evaluate_detections(ds, dets, iou_threshold, matching, min_gt_area, progress)  # type: ignore[arg-type]
     out = Path(out_json) if out_json else Path(detections_dir) / "detect_metrics.json"
     d = m.to_dict()
@@ -87,5 +93,6 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
         except json.JSONDecodeError:
             pass
     d["dataset"] = str(Path(dataset).resolve())
+    d["min_gt_area_px"] = float(min_gt_area)
     atomic_write_text(out, json.dumps(d, indent=2, default=lambda x: float(x) if isinstance(x, np.floating) else x))
     return m, out

@@ -129,7 +129,7 @@ def _prf(tp: int, nd: int, ng: int) -> tuple[float, float, float]:
 
 
 def frame_metrics(det: Detections, gt: Instances, frame: int = 0, camera: str = "left", iou_threshold: float = 0.5,
-                  method: Literal["greedy", "hungarian"] = "greedy", min_gt_area: int = 0
+                  method: Literal["greedy", "hungarian"] = "greedy", min_gt_area: float = 0
                   ) -> tuple[FrameDetectMetrics, np.ndarray]:
     """Metrics of one image and the keypoint errors (px) of its matched, centre-visible seeds.
 
@@ -174,7 +174,7 @@ def aggregate(rows: list[FrameDetectMetrics], errors: list[np.ndarray], iou_thre
 
 
 def evaluate_detections(dataset: object, detections: dict[tuple[int, str], Detections], iou_threshold: float = 0.5,
-                        method: Literal["greedy", "hungarian"] = "greedy", min_gt_area: int = 0,
+                        method: Literal["greedy", "hungarian"] = "greedy", min_gt_area: float = 0,
                         progress: bool = False) -> DetectMetrics:
     """Evaluate ``{(frame, camera): Detections}`` against the GT instances of a SeedmapDataset."""
     rows, errs = [], []
