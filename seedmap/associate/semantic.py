@@ -148,6 +148,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from pydantic import Field
 from scipy.optimize import linear_sum_assignment
 
 from seedmap.associate.base import FULL_RES_WIDTH, FrameFeatures, GateConfig
@@ -228,6 +229,26 @@ class SemanticConfig(ConfigModel):
     carry_init_fields: bool = True
     #: recover a stereo pair of t-1 when only one of its keypoints was matched in time
     carry_recover: bool = True
+    # stereo_prior="sgbm": dense stereo disparity as the prior of the stereo matching (needs the
+    # images, i.e. SeedMatcher.features; see seedmap.associate.disparity and the module docstring)
+    #: "none": the stereo prior is the keypoint field (``refine``); "sgbm": OpenCV StereoSGBM
+    stereo_prior: Literal["none", "sgbm"] = "none"
+    #: SGBM block size (px) and uniqueness ratio (percent)
+    sgbm_block: int = Field(3, ge=1)
+    sgbm_uniqueness: int = Field(5, ge=0)
+    #: margin (full-res px) around the disparities of the previous frame's matches searched by SGBM
+    sgbm_margin_px: float = Field(48.0, ge=0)
+    #: most disparities SGBM searches (image px; its CPU time grows linearly with this)
+    sgbm_max_disparities: int = Field(256, ge=16)
+    #: expected spread (u, v; full-res px) of a true right keypoint around ``(u - D(u, v), v)``
+    prior_sigma_px: tuple[float, float] = (2.0, 1.0)
+    #: ambiguity test of the prior matching: a kept pair's residual must be below this fraction of
+    #: every competitor's sharing one of its keypoints
+    prior_ratio: float = Field(0.6, gt=0)
+    #: left-right check (full-res px; 0 = off): also compute the right image's SGBM disparity
+    #: (a second SGBM run, ~2x the prior's CPU) and drop a pair whose right keypoint's disparity
+    #: points more than this away from its left keypoint (occlusions, wrong left disparities)
+    sgbm_lr_tol_px: float = Field(0.0, ge=0)
 
 
 def full_res_scale(width: int) -> float:
@@ -626,9 +647,40 @@ def field_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray,
         if fixed_v is not None:
             pred[:, 1] = fixed_v
     ia, ib, res = _field_candidates(ka, kb, pred, np.asarray(sigma, np.float64), gate, cfg.field_gate_sigma)
+    return _assign_in_prior(fa, fb, sa, sb, ia, ib, res, n, m, cfg, cfg.field_ratio)
+
+
+def _assign_in_prior(fa: np.ndarray, fb: np.ndarray, sa: np.ndarray, sb: np.ndarray, ia: np.ndarray,
+                     ib: np.ndarray, res: np.ndarray, n: int, m: int, cfg: SemanticConfig, ratio: float) -> Matches:
+    """Final step of every prior (field or dense disparity): the paper's cost plus
+    ``field_weight * res^2`` (``res`` the candidates' normalised residuals from the prior) assigned
+    with :func:`assign_capped`, then the ambiguity test on the residual."""
+    w = cfg.field_weight
     cost = pair_cost(fa, fb, sa, sb, cfg, ia, ib) + w * res * res
     out = assign_capped(n, m, ia, ib, cost, cfg.max_cost + w * cfg.field_gate_sigma ** 2)
-    return _ratio_test(out, ia, ib, res, n, m, cfg.field_ratio)
+    return _ratio_test(out, ia, ib, res, n, m, ratio)
+
+
+def prior_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray, sa: np.ndarray, sb: np.ndarray,
+                 gate, pred: np.ndarray, sigma: np.ndarray, cfg: SemanticConfig) -> Matches:
+    """Association of ``ka`` with ``kb`` around a *per-keypoint* displacement prior ``pred`` (N, 2;
+    image px) with per-keypoint expected spread ``sigma`` (N, 2; image px), e.g. the dense stereo
+    disparity ``(-D, 0)``. Unlike :func:`field_assign` the prior is not smoothed over neighbours:
+    a seed in front of or behind its panicle keeps its own displacement. Candidates within
+    ``field_gate_sigma`` normalised residuals that pass ``gate``, then :func:`_assign_in_prior` with
+    the ambiguity ratio ``prior_ratio``."""
+    n, m = len(ka), len(kb)
+    if n == 0 or m == 0:
+        return Matches()
+    sig = np.broadcast_to(np.asarray(sigma, np.float64), (n, 2))
+    gs = cfg.field_gate_sigma
+    ia, ib = box_pairs(ka + pred, kb, gs * sig.max(0))
+    ok = gate(ia, ib)
+    ia, ib = ia[ok], ib[ok]
+    r = (kb[ib] - ka[ia] - pred[ia]) / sig[ia]
+    res = np.hypot(r[:, 0], r[:, 1])
+    ok = res <= gs
+    return _assign_in_prior(fa, fb, sa, sb, ia[ok], ib[ok], res[ok], n, m, cfg, cfg.prior_ratio)
 
 
 def _field_candidates(ka: np.ndarray, kb: np.ndarray, pred: np.ndarray, sig: np.ndarray, gate,
@@ -683,12 +735,20 @@ def _inside(u: np.ndarray, width: int, border: float) -> np.ndarray:
 def match_stereo_keypoints(
     kp_left: np.ndarray, kp_right: np.ndarray, width: int, gates: GateConfig | None = None,
     cfg: SemanticConfig | None = None, sums: tuple[np.ndarray, np.ndarray] | None = None,
-    init_field: np.ndarray | None = None, iters: int | None = None,
+    init_field: np.ndarray | None = None, iters: int | None = None, disparity: np.ndarray | None = None,
+    disparity_right: np.ndarray | None = None,
 ) -> Matches:
     """Left<->right association of one rectified stereo pair (pixels of an image ``width`` wide).
 
     ``sums``: precomputed :func:`neighbour_sums` of both images in full-resolution units (cache).
-    ``init_field``/``iters``: ``refine="field"`` only, see :func:`field_assign`."""
+    ``init_field``/``iters``: ``refine="field"`` only, see :func:`field_assign`.
+    ``disparity`` (N,): dense-stereo disparity of every left keypoint (image px, NaN = unknown;
+    :mod:`seedmap.associate.disparity`): when given, the pairs are assigned around
+    ``(u - D, v)`` (:func:`prior_assign`, spread ``prior_sigma_px``) instead of the ``refine``
+    method; keypoints without a disparity take the median of their ``field_k`` nearest keypoints'
+    with the wider ``field_stereo_sigma_px``. ``disparity_right`` (M,): the right image's dense
+    disparity at every right keypoint (NaN = unknown): with ``sgbm_lr_tol_px > 0`` a pair is
+    dropped when ``u_right + D_right`` is farther than that from ``u_left`` (left-right check)."""
     cfg = cfg or SemanticConfig()
     g = (gates or GateConfig()).scaled(width)
     kl = np.asarray(kp_left, np.float64).reshape(-1, 2)
@@ -699,6 +759,22 @@ def match_stereo_keypoints(
     fl, fr = kl * s, kr * s
     sa = neighbour_sums(fl, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk) if sums is None else sums[0]
     sb = neighbour_sums(fr, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk) if sums is None else sums[1]
+    if disparity is not None:
+        d = np.asarray(disparity, np.float64).reshape(-1)
+        known = np.isfinite(d)
+        if known.sum() >= 3:
+            if not known.all():
+                d = d.copy()
+                d[~known] = field_at(kl[known], d[known, None], kl[~known], cfg.field_k)[:, 0]
+            sig = np.where(known[:, None], np.asarray(cfg.prior_sigma_px, np.float64) / s,
+                           np.asarray(cfg.field_stereo_sigma_px, np.float64) / s)
+            m = prior_assign(kl, kr, fl, fr, sa, sb, _stereo_gate_fn(kl, kr, g, width), np.c_[-d, np.zeros(len(d))],
+                             sig, cfg)
+            if disparity_right is not None and cfg.sgbm_lr_tol_px > 0 and len(m):
+                dr = np.asarray(disparity_right, np.float64).reshape(-1)[m.idx_b]
+                bad = np.abs(kr[m.idx_b, 0] + dr - kl[m.idx_a, 0]) > cfg.sgbm_lr_tol_px / s  # NaN: not tested
+                m = Matches(m.idx_a[~bad], m.idx_b[~bad], m.cost[~bad])
+            return m
     if cfg.refine == "field":
         def gate(ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
             return (((kl[ia, 0] - kr[ib, 0]) >= g.stereo_min_disparity_px)
@@ -1171,6 +1247,8 @@ class SeedMatcher:
         self._prev_track: np.ndarray | None = None
         self._prev_candidates: Matches = Matches()
         self._prev_flow: tuple[np.ndarray, np.ndarray] | None = None
+        #: stereo_prior="sgbm": (frame index, disparities of its stereo matches) for the next search range
+        self._disp_known: tuple[int, np.ndarray] | None = None
 
     def _cached_sums(self, kp: np.ndarray) -> np.ndarray:
         for arr, sums in self._sums:
@@ -1189,7 +1267,12 @@ class SeedMatcher:
             return None
         return self._prev if index > self._prev.index else None
 
-    def features_from_detections(self, det: StereoDetections) -> FrameFeatures:
+    def features_from_detections(self, det: StereoDetections, disparity: np.ndarray | None = None,
+                                 disparity_right: np.ndarray | None = None) -> FrameFeatures:
+        """Stereo matches of one frame's detections. ``disparity``: dense-stereo disparity of every
+        left keypoint (image px, NaN = unknown), the prior of ``stereo_prior="sgbm"`` (computed by
+        :meth:`features` from the images); without it the ``refine`` method is used.
+        ``disparity_right``: the right image's at every right keypoint (``sgbm_lr_tol_px``)."""
         t0, c0 = time.perf_counter(), time.process_time()
         kl = np.asarray(det.left.keypoints, np.float64).reshape(-1, 2)
         kr = np.asarray(det.right.keypoints, np.float64).reshape(-1, 2)
@@ -1200,7 +1283,8 @@ class SeedMatcher:
         timings: dict[str, float] = {}
         step = None
         if prev is None:
-            m = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg, sums=sums)
+            m = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg, sums=sums, disparity=disparity,
+                                       disparity_right=disparity_right)
             if self.cfg.stereo_carry:  # a new sequence: no constant-velocity prediction from the old one
                 self._last_shift = self._last_shift_v = None
         else:
@@ -1237,9 +1321,57 @@ class SeedMatcher:
         t0 = time.perf_counter()
         det = self.detector.detect_stereo(frame)
         t_det = (time.perf_counter() - t0) * 1e3
-        f = self.features_from_detections(det)
+        disp, disp_r, t_prior = None, None, {}
+        if self.cfg.stereo_prior == "sgbm" and self._carry_from(det.index) is None:
+            disp, disp_r, t_prior = self._dense_prior(frame, det)
+        f = self.features_from_detections(det, disparity=disp, disparity_right=disp_r)
+        for k, v in t_prior.items():  # the prior is part of the stereo association's cost
+            f.timings_ms[k] = v
+            if k.endswith("_cpu"):
+                f.timings_ms["stereo_match_cpu"] += v
+            else:
+                f.timings_ms["stereo_match"] += v
         f.timings_ms["detect"] = t_det
+        if disp is not None:
+            m = f.stereo
+            self._disp_known = (det.index, f.kp_left[m.idx_a, 0] - f.kp_right[m.idx_b, 0])
         return f
+
+    def _dense_prior(self, frame: StereoFrame,
+                     det: StereoDetections) -> tuple[np.ndarray | None, np.ndarray | None, dict[str, float]]:
+        """SGBM disparity of every left keypoint (image px, NaN = unknown), of every right keypoint
+        (only with ``sgbm_lr_tol_px > 0``, else None) and the timings.
+
+        The disparity range searched comes from the previous frame's stereo matches when this frame
+        follows it, else from a keypoint-only matching of this frame (``refine`` method)."""
+        from seedmap.associate.disparity import disparity_at, disparity_search_range, sgbm_disparity
+
+        t0, c0 = time.perf_counter(), time.process_time()
+        kl = np.asarray(det.left.keypoints, np.float64).reshape(-1, 2)
+        kr = np.asarray(det.right.keypoints, np.float64).reshape(-1, 2)
+        if len(kl) == 0 or len(kr) == 0:
+            return None, None, {}
+        s = full_res_scale(self.calib.width)
+        g = self.gates.scaled(self.calib.width)
+        known = None
+        if self._disp_known is not None and self._disp_known[0] == det.index - 1:
+            known = self._disp_known[1]
+        rng = None if known is None else disparity_search_range(
+            known, self.cfg.sgbm_margin_px / s, g.stereo_min_disparity_px, self.cfg.sgbm_max_disparities)
+        if rng is None:
+            m0 = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg)
+            rng = disparity_search_range(kl[m0.idx_a, 0] - kr[m0.idx_b, 0], self.cfg.sgbm_margin_px / s,
+                                         g.stereo_min_disparity_px, self.cfg.sgbm_max_disparities)
+        if rng is None:
+            return None, None, {}
+        d_img = sgbm_disparity(frame.left, frame.right, rng[0], rng[1], self.cfg.sgbm_block, self.cfg.sgbm_uniqueness)
+        d = disparity_at(d_img, kl)
+        d_r = None
+        if self.cfg.sgbm_lr_tol_px > 0:  # the right image's disparity: SGBM of the mirrored pair
+            r_img = sgbm_disparity(frame.right[:, ::-1], frame.left[:, ::-1], rng[0], rng[1], self.cfg.sgbm_block,
+                                   self.cfg.sgbm_uniqueness)[:, ::-1]
+            d_r = disparity_at(r_img, kr)
+        return d, d_r, {"stereo_prior": (time.perf_counter() - t0) * 1e3, "stereo_prior_cpu": (time.process_time() - c0) * 1e3}
 
     def _update_shift(self, ka: np.ndarray, kb: np.ndarray, m: Matches) -> None:
         if len(m) >= 5:
@@ -1269,3 +1401,4 @@ class SeedMatcher:
         self._prev_track = None
         self._prev_candidates = Matches()
         self._prev_flow = None
+        self._disp_known = None

@@ -73,6 +73,14 @@ class SlamAssociationConfig(SemanticConfig):
     ``--set association.refine=none --set association.temporal_prediction=false``; the session-1
     default was ``--set association.refine=consensus``.
 
+    ``--set association.stereo_prior=sgbm`` (session 4) assigns the stereo pairs around the dense
+    SGBM disparity of each left keypoint instead (seedmap.associate.disparity; add
+    ``--set association.sgbm_lr_tol_px=3`` for the left-right check, a second SGBM run): higher
+    stereo precision *and* recall with the gt oracle, but it is *not* the default because the SLAM
+    trajectory drifts more with it (1 m range: GT-validated MDM 100 -> 80 % with gt, 100 -> 48 %
+    with fast; SE3-aligned ATE about equal; the same start-of-range drift as ``stereo_carry``: the
+    extra pairs are seeds whose disparity disagrees with their neighbours', which the field rejects).
+
     ``--set association.stereo_carry=true`` adds the stereo-temporal loop (stereo carried through
     the left and right temporal matches, parallax test, loop check of the temporal matches): much
     higher stereo precision, but it is *not* the default because the SLAM trajectory gets worse with
@@ -82,6 +90,7 @@ class SlamAssociationConfig(SemanticConfig):
     refine: Literal["none", "consensus", "field"] = "field"
     temporal_prediction: bool = True
     stereo_carry: bool = False
+    stereo_prior: Literal["none", "sgbm"] = "none"
 
 
 class SlamConfig(ConfigModel):
