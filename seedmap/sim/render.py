@@ -16,9 +16,12 @@ vignetting, optical blur, shot + read noise, sRGB gamma, optional motion blur an
 Cost-saving approximations (labels, depth and instance tables stay exact: they come from the
 pixel-centre rays only): flash-shadow rays are traced on every ``SHADOW_STRIDE``-th pixel of every
 ``SHADOW_STRIDE``-th row and spread edge-aware to the pixels that see the same object (a pixel with no
-such sample traces its own); anti-aliasing sub-samples are not traced where the ray provably stays
-inside the pixel's seed (``_inside_seed``) and are traced only against the objects the pixel and the
-pixels it lies towards see. Flash samples and sensor noise use separate random streams.
+such sample traces its own); an anti-aliasing sub-sample takes the shading of the neighbouring pixel
+that sees the same object, deciding which object without a ray where the seeds' analytic image
+outlines allow (``_antialias``; sub-samples on a seed rim are shaded analytically on the ellipsoid
+with that pixel's flash visibility), and the rest are traced only against the objects the pixel and
+the pixels it lies towards see. Shading is float32 struct-of-arrays with per-seed and per-triangle
+tables built once per frame. Flash samples and sensor noise use separate random streams.
 """
 
 from __future__ import annotations
@@ -293,7 +296,6 @@ class _FrameScene:
                  light: np.ndarray) -> None:
         o3d = _o3d()
         self.world = world
-        self.f32 = _world_f32(world)
         self.D = world.panicle_motion(t)
         self.Dinv = invert(self.D) if len(self.D) else self.D
         self.D32 = self.D.astype(np.float32)
@@ -351,6 +353,7 @@ class _FrameScene:
                 add(allv, allf, vertex_normals(allv, allf), np.repeat(world.leaf_color[sel], nv, axis=0),
                     np.tile(world.leaf_uv, (nL, 1)), CLS_LEAF)
         self.env = None
+        self.tri_table = np.zeros((18, 0), np.float32)
         if F:
             self.V = np.vstack(V).astype(np.float32)
             self.F = np.vstack(F).astype(np.int64)
@@ -359,6 +362,9 @@ class _FrameScene:
             self.VUV = np.vstack(VUV).astype(np.float32)
             self.tri_cls = np.concatenate(cls)
             self.tri_albedo = self.VC[self.F[:, 0]]  # albedo is constant per leaf / stalk
+            # per-triangle shading table (18, T): vertex normals (3 x 3), uv (3 x 2), albedo (3)
+            self.tri_table = np.ascontiguousarray(np.concatenate(
+                [self.VN[self.F].reshape(-1, 9).T, self.VUV[self.F].reshape(-1, 6).T, self.tri_albedo.T]))
             if len(self.F) > self.n_soil:  # the soil is a plane, intersected analytically
                 self.env = o3d.t.geometry.RaycastingScene()
                 self.env.add_triangles(o3d.core.Tensor.from_numpy(self.V),
@@ -380,6 +386,17 @@ class _FrameScene:
             self.radii = r[self.active].astype(np.float32)
         self.bvh = {int(k): _panicle_bvh(world, int(k)) for k in self.active}
         self.seed_start = np.array([p.seed_start for p in world.panicles], np.int64)
+        # per-seed shading tables over global seed ids, filled for the active panicles' seeds only:
+        # axes at this instant (9, row-major A[i, j] = axis j's component i) and centre (3)
+        N = len(world.seeds)
+        self.seed_stat = _seed_static(world)
+        self.seed_dyn = np.empty((12, N), np.float32)
+        ids = [np.arange(world.panicles[k].seed_start, world.panicles[k].seed_stop) for k in self.active]
+        self.active_seed_ids = np.concatenate(ids) if ids else np.zeros(0, np.int64)
+        for k, s in zip(self.active, ids, strict=True):
+            Rk = self.D[k, :3, :3]
+            self.seed_dyn[:9, s] = np.einsum("ik,nkj->ijn", Rk, world.seed_axes[s]).reshape(9, -1)
+            self.seed_dyn[9:, s] = (world.seeds.xyz[s] @ Rk.T + self.D[k, :3, 3]).T
 
     def _soil_hits(self, o: np.ndarray, d: np.ndarray, tmax: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Indices of the rays ``o + t d`` meeting the soil rectangle (z = 0) at ``0 < t < tmax``, and
@@ -590,18 +607,6 @@ class _FrameScene:
         return occ
 
 
-def _world_f32(world: World) -> dict:
-    """float32 copies of the per-seed arrays the shader reads (cached on the world)."""
-    f = world.cache.get("f32")
-    if f is None:
-        f = world.cache["f32"] = {
-            "xyz": world.seeds.xyz.astype(np.float32), "radii": world.seeds.radii.astype(np.float32),
-            "axes": world.seed_axes.astype(np.float32), "albedo": world.seed_albedo.astype(np.float32),
-            "glume": world.glume_albedo.astype(np.float32), "extent": world.glume_extent.astype(np.float32),
-            "ao": world.seed_ao.astype(np.float32)}
-    return f
-
-
 def _sphere_in_frustum(c: np.ndarray, r: np.ndarray, T_world_cam: np.ndarray, calib: StereoCalib,
                        origin: np.ndarray | None = None) -> np.ndarray:
     """Conservative test: which spheres (world) touch the view frustum of the camera (optionally moved
@@ -622,29 +627,55 @@ def _sphere_in_frustum(c: np.ndarray, r: np.ndarray, T_world_cam: np.ndarray, ca
 # ------------------------------------------------------------------------------------------------
 
 
-def _soil_albedo(world: World, p: np.ndarray) -> np.ndarray:
-    tex = world.soil_texture
+def _soil_albedo(world: World, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Soil albedo (3, n) float32 at ground points ``(x, y)`` (m): the tiled texture, bilinear."""
+    tex = _soil_tex_f32(world)
     S = tex.shape[0]
-    u = (p[:, 0] / world.soil_tile) * S
-    v = (p[:, 1] / world.soil_tile) * S
-    i0 = np.floor(u).astype(np.int64)
-    j0 = np.floor(v).astype(np.int64)
-    fu = (u - i0)[:, None]
-    fv = (v - j0)[:, None]
+    u = x * np.float32(S / world.soil_tile)
+    v = y * np.float32(S / world.soil_tile)
+    fu = np.floor(u)
+    fv = np.floor(v)
+    i0 = fu.astype(np.int64)
+    j0 = fv.astype(np.int64)
+    fu = u - fu
+    fv = v - fv
     i0 %= S
     j0 %= S
-    i1, j1 = (i0 + 1) % S, (j0 + 1) % S
-    val = ((tex[j0, i0][:, None] * (1 - fu) + tex[j0, i1][:, None] * fu) * (1 - fv)
-           + (tex[j1, i0][:, None] * (1 - fu) + tex[j1, i1][:, None] * fu) * fv)
-    return world.soil_color[None, :] * val
+    i1 = i0 + 1
+    j1 = j0 + 1  # the texture is padded by one row and column (wrap)
+    a = tex[j0, i0]
+    a += (tex[j0, i1] - a) * fu
+    b = tex[j1, i0]
+    b += (tex[j1, i1] - b) * fu
+    a += (b - a) * fv
+    return world.soil_color.astype(np.float32)[:, None] * a[None, :]
+
+
+def _soil_tex_f32(world: World) -> np.ndarray:
+    """The soil texture as float32, padded by one wrapped row and column (cached on the world)."""
+    t = world.cache.get("soil_tex_f32")
+    if t is None:
+        tex = world.soil_texture
+        t = world.cache["soil_tex_f32"] = np.pad(tex, ((0, 1), (0, 1)), mode="wrap").astype(np.float32)
+    return t
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
 
 
-def _normalize(a: np.ndarray) -> np.ndarray:
-    return a / np.maximum(np.sqrt(_dot(a, a)), 1e-12)[:, None]
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot product of two (3, n) struct-of-arrays vectors."""
+    out = a[0] * b[0]
+    out += a[1] * b[1]
+    out += a[2] * b[2]
+    return out
+
+
+def _normalize3(a: np.ndarray) -> np.ndarray:
+    """Normalise (3, n) vectors in place (and return them)."""
+    a *= 1.0 / np.maximum(np.sqrt(_dot3(a, a)), np.float32(1e-12))
+    return a
 
 
 @dataclass
@@ -670,17 +701,52 @@ def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.nd
     return direct * vis[:, None] + amb
 
 
+# per-class specular strength and exponent (Blinn-Phong); seeds: 0.12 on the grain, 0.03 on the glume
+KS_SOIL, KS_STALK, KS_LEAF, KS_RACHIS = 0.01, 0.06, 0.10, 0.04
+SHIN_DEFAULT, SHIN_LEAF, SHIN_SEED = 20.0, 25.0, 45.0
+RACHIS_ALBEDO = (0.30, 0.26, 0.13)
+_LEAF_LUT_N = 8192  # samples of the leaf's across-pattern (midrib x veins) over w in [0, 1]
+
+
+def _leaf_pattern_lut() -> np.ndarray:
+    """Midrib and vein brightening of a leaf as a function of the across-leaf coordinate ``w`` in
+    [0, 1] (a table: exp and sin per pixel were a tenth of the shading time)."""
+    w = np.linspace(0, 1, _LEAF_LUT_N)
+    return ((1.0 + 0.35 * np.exp(-((w - 0.5) / 0.05) ** 2)) * (1.0 + 0.05 * np.sin(w * 2 * np.pi * 11.0))).astype(
+        np.float32)
+
+
+_LEAF_LUT = _leaf_pattern_lut()
+
+
+def _seed_static(world: World) -> np.ndarray:
+    """Per-seed shading constants, struct-of-arrays (12, N) float32 (cached on the world): rows
+    ``1/r^2`` (3), ``1/r_z``, grain albedo (3), glume albedo (3), glume edge (``extent + 0.15``), AO."""
+    t = world.cache.get("seed_static")
+    if t is None:
+        r = world.seeds.radii
+        t = np.concatenate([(1.0 / (r * r)).T, (1.0 / r[:, 2])[None], world.seed_albedo.T, world.glume_albedo.T,
+                            (world.glume_extent + 0.15)[None], world.seed_ao[None]]).astype(np.float32)
+        world.cache["seed_static"] = t = np.ascontiguousarray(t)
+    return t
+
+
 def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray,
                  light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
-                 scovers: _CamCovers | None = None, shadow_rays: np.ndarray | None = None):
+                 scovers: _CamCovers | None = None, shadow_rays: np.ndarray | None = None,
+                 vis_given: np.ndarray | None = None):
     """``(direct (N, 3), flash visibility (N,), ambient (N, 3), pending)``: radiance = direct * vis + ambient.
 
+    ``vis_given`` (N,): the flash visibility to use instead of tracing shadow rays.
     ``shadow_rays`` (bool (N,), None = all): which lit rays get a shadow ray now; the others get
     ``vis = NaN`` and their shadow segments are returned in ``pending`` (``_PendingShadows``) so the
-    caller can trace the ones it cannot interpolate."""
+    caller can trace the ones it cannot interpolate.
+
+    Struct-of-arrays float32 throughout ((3, m) vectors, per-surface constants gathered once from
+    per-seed / per-triangle tables): the shading of a million pixels is memory-bound, so fewer and
+    smaller temporaries are what makes it fast."""
     ic = cfg.imaging
     world = fs.world
-    f32 = fs.f32
     n = len(d)
     direct_out = np.zeros((n, 3), np.float32)
     amb_out = np.zeros((n, 3), np.float32)
@@ -688,143 +754,128 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     far = ic.light_cutoff + 0.3
     live = np.nonzero(h.t < far)[0]
     pending = _PendingShadows.empty()
-    if len(live) == 0:
-        return direct_out, vis_out, amb_out, pending
-    dl = d[live]
-    t = h.t[live]
-    cls = h.cls[live]
-    p = (o if len(o) == 1 else o[live]) + t[:, None] * dl
     m = len(live)
-    albedo = np.empty((m, 3), np.float32)
-    nrm = np.empty((m, 3), np.float32)
-    ks = np.zeros(m, np.float32)
-    shin = np.full(m, 20.0, np.float32)
-    ao = np.ones(m, np.float32)
+    if m == 0:
+        return direct_out, vis_out, amb_out, pending
+    t = h.t[live]
+    dl = np.ascontiguousarray(d[live].T)  # (3, m)
+    p = dl * t
+    p += o[0][:, None] if len(o) == 1 else o[live].T
+    cls = h.cls[live]
     prim = h.prim[live]
-    # env surfaces: interpolate vertex attributes
-    em = np.nonzero(cls <= CLS_LEAF)[0]
+    albedo = np.empty((3, m), np.float32)
+    nrm = np.empty((3, m), np.float32)
+    ks = np.empty(m, np.float32)
+    shin = np.full(m, SHIN_DEFAULT, np.float32)
+    ao = np.ones(m, np.float32)
+    # soil: flat, textured
+    soil = np.nonzero(cls == CLS_SOIL)[0]
+    if len(soil):
+        nrm[:, soil] = np.array([[0.0], [0.0], [1.0]], np.float32)
+        albedo[:, soil] = _soil_albedo(world, p[0, soil], p[1, soil])
+        ks[soil] = KS_SOIL
+    # stalks and leaves: interpolated vertex normals, per-triangle albedo, leaf pattern
+    em = np.nonzero((cls == CLS_STALK) | (cls == CLS_LEAF))[0]
     if len(em):
-        F = fs.F[prim[em]]
+        tab = fs.tri_table[:, prim[em]]  # (18, e): vertex normals (9), uv (6), albedo (3)
         bary = h.bary[live[em]]
-        b1, b2 = bary[:, 0:1], bary[:, 1:2]
+        b1 = np.ascontiguousarray(bary[:, 0])
+        b2 = np.ascontiguousarray(bary[:, 1])
         b0 = 1 - b1 - b2
-        nrm[em] = fs.VN[F[:, 0]] * b0 + fs.VN[F[:, 1]] * b1 + fs.VN[F[:, 2]] * b2
-        albedo[em] = fs.tri_albedo[prim[em]]
-        c = cls[em]
-        soil = np.nonzero(c == CLS_SOIL)[0]
-        if len(soil):
-            albedo[em[soil]] = _soil_albedo(world, p[em[soil]])
-            ks[em[soil]] = 0.01
-        leaf = np.nonzero(c == CLS_LEAF)[0]
-        if len(leaf):
-            Fl = F[leaf]
-            bl0, bl1, bl2 = b0[leaf], b1[leaf], b2[leaf]
-            uvw = fs.VUV[Fl[:, 0]] * bl0 + fs.VUV[Fl[:, 1]] * bl1 + fs.VUV[Fl[:, 2]] * bl2
-            s, w = uvw[:, 0], uvw[:, 1]
-            midrib = 1.0 + 0.35 * np.exp(-((w - 0.5) / 0.05) ** 2)
-            veins = 1.0 + 0.05 * np.sin(w * np.float32(2 * np.pi * 11.0))
-            tipdry = 1.0 + 0.25 * np.clip((s - 0.75) * 4.0, 0, 1)
-            albedo[em[leaf]] *= (midrib * veins * tipdry)[:, None]
-            ks[em[leaf]] = 0.10
-            shin[em[leaf]] = 25.0
-        ks[em[c == CLS_STALK]] = 0.06
+        for c in range(3):
+            nrm[c, em] = tab[c] * b0 + tab[3 + c] * b1 + tab[6 + c] * b2
+        alb = tab[15:18]
+        leaf = cls[em] == CLS_LEAF
+        ks[em] = np.where(leaf, np.float32(KS_LEAF), np.float32(KS_STALK))
+        li = np.nonzero(leaf)[0]
+        if len(li):
+            s = tab[9, li] * b0[li] + tab[11, li] * b1[li] + tab[13, li] * b2[li]
+            w = tab[10, li] * b0[li] + tab[12, li] * b1[li] + tab[14, li] * b2[li]
+            wi = np.clip(w * np.float32(_LEAF_LUT_N - 1) + np.float32(0.5), 0, _LEAF_LUT_N - 1).astype(np.int32)
+            tipdry = np.clip((s - np.float32(0.75)) * np.float32(4.0), 0, 1)
+            tipdry *= np.float32(0.25)
+            tipdry += np.float32(1.0)
+            alb[:, li] *= _LEAF_LUT[wi] * tipdry
+            shin[em[li]] = SHIN_LEAF
+        albedo[:, em] = alb
     # rachis: flat normals from the panicle mesh, rotated by the wind
     rm = np.nonzero(cls == CLS_RACHIS)[0]
     if len(rm):
         objs = h.obj[live[rm]]
         for k in np.unique(objs):
             sel = rm[objs == k]
-            nrm[sel] = _xf(fs.bvh[int(k)].face_normals[prim[sel]], fs.D32[k, :3, :3])
-        albedo[rm] = np.array([0.30, 0.26, 0.13], np.float32)
-        ks[rm] = 0.04
+            nrm[:, sel] = _xf(fs.bvh[int(k)].face_normals[prim[sel]], fs.D32[k, :3, :3]).T
+        albedo[:, rm] = np.array(RACHIS_ALBEDO, np.float32)[:, None]
+        ks[rm] = KS_RACHIS
     # seeds: analytic ellipsoid normal (smooth shading on a low-poly mesh), glume at the base
     sm = np.nonzero(cls == CLS_SEED)[0]
     if len(sm):
         sid = h.seed[live[sm]]
-        objs = h.obj[live[sm]]
-        p_rest = np.empty((len(sm), 3), np.float32)
-        uk = np.unique(objs)
-        for k in uk:
-            sel = objs == k
-            Di = fs.Dinv32[k]
-            p_rest[sel] = _xf(p[sm[sel]], Di[:3, :3], Di[:3, 3])
-        A = f32["axes"][sid]
-        r = f32["radii"][sid]
-        dp = p_rest - f32["xyz"][sid]
-        q = dp[:, 0:1] * A[:, 0, :] + dp[:, 1:2] * A[:, 1, :] + dp[:, 2:3] * A[:, 2, :]  # local coordinates
-        w = q / (r * r)
-        n_rest = A[:, :, 0] * w[:, 0:1] + A[:, :, 1] * w[:, 1:2] + A[:, :, 2] * w[:, 2:3]
-        if len(uk) == 1:
-            nrm[sm] = _xf(n_rest, fs.D32[uk[0], :3, :3])
-        else:
-            for k in uk:
-                sel = objs == k
-                nrm[sm[sel]] = _xf(n_rest[sel], fs.D32[k, :3, :3])
-        zrel = q[:, 2] / r[:, 2]
-        g = np.clip((f32["extent"][sid] + 0.15 - zrel) * (1 / 0.3), 0, 1)
+        dyn = fs.seed_dyn[:, sid]  # (12, s): axes now (9, row-major), centre now (3)
+        st = fs.seed_stat[:, sid]  # (12, s), see _seed_static
+        dp = p[:, sm] - dyn[9:12]
+        # local coordinates q_j = sum_i A[i, j] dp_i; normal n_i = sum_j A[i, j] q_j / r_j^2
+        q = [dyn[j] * dp[0] + dyn[3 + j] * dp[1] + dyn[6 + j] * dp[2] for j in range(3)]
+        wq = [q[j] * st[j] for j in range(3)]
+        for i in range(3):
+            nrm[i, sm] = dyn[3 * i] * wq[0] + dyn[3 * i + 1] * wq[1] + dyn[3 * i + 2] * wq[2]
+        g = np.clip((st[10] - q[2] * st[3]) * np.float32(1 / 0.3), 0, 1)
         g = g * g * (3 - 2 * g)
-        albedo[sm] = f32["albedo"][sid] * (1 - g[:, None]) + f32["glume"][sid] * g[:, None]
-        ks[sm] = 0.12 * (1 - g) + 0.03 * g
-        shin[sm] = 45.0
-        ao[sm] = f32["ao"][sid]
-    nrm = _normalize(nrm)
-    flip = _dot(nrm, dl) > 0
-    nrm[flip] *= -1
+        albedo[:, sm] = st[4:7] + (st[7:10] - st[4:7]) * g
+        ks[sm] = np.float32(0.12) - np.float32(0.09) * g
+        shin[sm] = SHIN_SEED
+        ao[sm] = st[11]
+    _normalize3(nrm)
+    nrm *= np.where(_dot3(nrm, dl) > 0, np.float32(-1), np.float32(1))
     # flash: a random point on a small disc per sample (soft shadows)
-    rr = (ic.flash_radius * np.sqrt(rng.random(m, np.float32))).astype(np.float32)
+    rr = np.sqrt(rng.random(m, np.float32)) * np.float32(ic.flash_radius)
     th = rng.random(m, np.float32) * np.float32(2 * np.pi)
-    lp = light.astype(np.float32)[None, :] + (rr * np.cos(th))[:, None] * light_axes[0] + \
-        (rr * np.sin(th))[:, None] * light_axes[1]
+    ca, sa = np.cos(th) * rr, np.sin(th) * rr
+    lp = np.empty((3, m), np.float32)
+    for c in range(3):
+        lp[c] = ca * light_axes[0, c] + sa * light_axes[1, c] + np.float32(light[c])
     lv = lp - p
-    dist = np.sqrt(_dot(lv, lv))
-    ldir = lv / dist[:, None]
-    ndl = np.maximum(_dot(nrm, ldir), 0)
-    fade = np.clip((ic.light_cutoff + 0.25 - dist) * 2.0, 0, 1)
+    dist2 = _dot3(lv, lv)
+    dist = np.sqrt(dist2)
+    ldir = lv * (1 / dist)
+    ndl = np.maximum(_dot3(nrm, ldir), 0)
+    fade = np.clip((np.float32(ic.light_cutoff + 0.25) - dist) * 2, 0, 1)
     fade = fade * fade * (3 - 2 * fade)
-    irr = (REF_DISTANCE * REF_DISTANCE) / (dist * dist) * fade
+    irr = fade * np.float32(REF_DISTANCE * REF_DISTANCE) / dist2
     vis = np.ones(m, np.float32)
-    if ic.shadows:
+    if vis_given is not None:
+        vis = vis_given[live].astype(np.float32)
+    elif ic.shadows:
         lit = np.nonzero((ndl > 0) & (irr > 1e-4))[0]
         if shadow_rays is not None:
             later = ~shadow_rays[live[lit]]
             if later.any():
                 lt = lit[later]
-                st = p[lt] + nrm[lt] * 2e-4 + ldir[lt] * 5e-4
-                pending = _PendingShadows(live[lt], st, lp[lt] - st, None if pix is None else pix[live[lt]])
+                st_ = (p[:, lt] + nrm[:, lt] * np.float32(2e-4) + ldir[:, lt] * np.float32(5e-4)).T
+                pending = _PendingShadows(live[lt], np.ascontiguousarray(st_), np.ascontiguousarray(lp[:, lt].T - st_),
+                                          None if pix is None else pix[live[lt]])
                 vis[lt] = np.nan
                 lit = lit[~later]
-        start = p[lit] + nrm[lit] * 2e-4 + ldir[lit] * 5e-4
-        occ = fs.occluded(start, lp[lit] - start, None if pix is None else pix[live[lit]], scovers)
+        start = (p[:, lit] + nrm[:, lit] * np.float32(2e-4) + ldir[:, lit] * np.float32(5e-4)).T
+        occ = fs.occluded(np.ascontiguousarray(start), np.ascontiguousarray(lp[:, lit].T - start),
+                          None if pix is None else pix[live[lit]], scovers)
         vis[lit[occ]] = 0.0
-    hv = _normalize(ldir - dl)
-    spec = ks * np.maximum(_dot(nrm, hv), 0) ** shin
-    direct_out[live] = albedo * (ndl * irr)[:, None] + (spec * irr * (ndl > 0))[:, None]
-    amb_out[live] = albedo * (ic.ambient * irr * ao)[:, None]
+    hv = ldir - dl
+    _normalize3(hv)
+    nh = np.maximum(_dot3(nrm, hv), np.float32(1e-30))
+    spec = np.exp(np.log(nh) * shin)
+    spec *= ks
+    spec *= irr
+    spec *= ndl > 0
+    ndl *= irr
+    for c in range(3):
+        direct_out[live, c] = albedo[c] * ndl + spec
+    irr *= np.float32(ic.ambient)
+    irr *= ao
+    for c in range(3):
+        amb_out[live, c] = albedo[c] * irr
     vis_out[live] = vis
     return direct_out, vis_out, amb_out, pending
-
-
-def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.ndarray:
-    """Edge-aware box filter of the flash visibility (one random flash sample per pixel makes soft
-    shadows noisy): average only over neighbours that see the same object, separably."""
-    H, W = vis.shape
-    for axis in (1, 0):
-        vp = np.pad(vis, radius, mode="edge")
-        kp = np.pad(key, radius, mode="constant", constant_values=np.iinfo(key.dtype).min)
-        num = vis.copy()
-        den = np.ones_like(vis)
-        for s in range(-radius, radius + 1):
-            if s == 0:
-                continue
-            if axis == 1:
-                vs, ks = vp[radius:radius + H, radius + s:radius + s + W], kp[radius:radius + H, radius + s:radius + s + W]
-            else:
-                vs, ks = vp[radius + s:radius + s + H, radius:radius + W], kp[radius + s:radius + s + H, radius:radius + W]
-            same = ks == key
-            num += np.where(same, vs, 0)
-            den += same
-        vis = num / den
-    return vis
 
 
 SHADOW_STRIDE = 2  # flash shadow rays on every 2nd pixel of every 2nd row (plus where none is near)
@@ -839,6 +890,34 @@ def _shadow_grid(H: int, W: int) -> np.ndarray:
     return g.reshape(-1)
 
 
+def _edge_aware_sum(num: np.ndarray, den: np.ndarray, key: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """Separable box sums of ``num`` and ``den`` (H x W float32) over the ``(2 radius + 1)^2`` window,
+    counting only the pixels whose ``key`` equals the centre pixel's (no padding copies: each shift
+    adds one shifted slice where the keys agree)."""
+    for axis in (1, 0):
+        n2, d2 = num.copy(), den.copy()
+        L = key.shape[axis]
+        for s in range(1, radius + 1):
+            if s >= L:
+                break
+            lo = (slice(None), slice(0, L - s)) if axis == 1 else (slice(0, L - s), slice(None))
+            hi = (slice(None), slice(s, L)) if axis == 1 else (slice(s, L), slice(None))
+            same = key[lo] == key[hi]
+            np.add(n2[lo], num[hi], out=n2[lo], where=same)
+            np.add(d2[lo], den[hi], out=d2[lo], where=same)
+            np.add(n2[hi], num[lo], out=n2[hi], where=same)
+            np.add(d2[hi], den[lo], out=d2[hi], where=same)
+        num, den = n2, d2
+    return num, den
+
+
+def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.ndarray:
+    """Edge-aware box filter of the flash visibility (one random flash sample per pixel makes soft
+    shadows noisy): average only over neighbours that see the same object, separably."""
+    num, den = _edge_aware_sum(vis.astype(np.float32), np.ones(vis.shape, np.float32), key, radius)
+    return num / den
+
+
 def _shadows_from_samples(fs: _FrameScene, vis: np.ndarray, key: np.ndarray, pending: _PendingShadows,
                           scovers: _CamCovers | None) -> np.ndarray:
     """Soft-shadow visibility of every pixel from sparse samples (``vis`` NaN where no shadow ray was
@@ -847,26 +926,11 @@ def _shadows_from_samples(fs: _FrameScene, vis: np.ndarray, key: np.ndarray, pen
     object) trace their own pending shadow ray. Why: one shadow ray per pixel was a third of the
     render's ray casts; the penumbra of the small flash disc is smooth at this sampling."""
     H, W = vis.shape
-    r = SHADOW_RADIUS
     w = np.isfinite(vis)
-    num = np.where(w, vis, 0).astype(np.float32)
-    den = w.astype(np.float32)
-    kp = np.pad(key, r, mode="constant", constant_values=np.iinfo(key.dtype).min)
-    for axis in (1, 0):
-        nump, denp = np.pad(num, r), np.pad(den, r)
-        n2, d2 = num.copy(), den.copy()
-        for sft in range(-r, r + 1):
-            if sft == 0:
-                continue
-            if axis == 1:
-                win = (slice(r, r + H), slice(r + sft, r + sft + W))
-            else:
-                win = (slice(r + sft, r + sft + H), slice(r, r + W))
-            same = kp[win] == key
-            n2 += np.where(same, nump[win], 0)
-            d2 += np.where(same, denp[win], 0)
-        num, den = n2, d2
-    out = np.where(den > 0, num / np.maximum(den, 1e-12), 1.0).astype(np.float32)
+    num, den = _edge_aware_sum(np.where(w, vis, np.float32(0)), w.astype(np.float32), key, SHADOW_RADIUS)
+    out = num
+    np.divide(num, den, out=out, where=den > 0)
+    out[den <= 0] = 1.0
     if len(pending.idx):
         rr, cc = np.divmod(pending.idx, W)
         lone = np.nonzero(den[rr, cc] <= 0)[0]
@@ -878,50 +942,217 @@ def _shadows_from_samples(fs: _FrameScene, vis: np.ndarray, key: np.ndarray, pen
 
 
 ENV_CODE = -2  # ``_FrameScene.trace(only=...)`` code of the env BVH (stalks and leaves)
-SEED_INRADIUS = 0.93  # the seed mesh (icosphere, in-radius 0.934) holds its ellipsoid scaled by this
+SEED_AA_SCALE = 0.97  # the seed mesh's outline is about its ellipsoid's scaled by this (80-face icosphere)
 
 
-def _inside_seed(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray, obj: np.ndarray) -> np.ndarray:
-    """True where the ray ``o + t d`` (t > 0) meets seed ``sid``'s ellipsoid shrunk by ``SEED_INRADIUS``
-    (panicle ``obj``, at this frame's wind pose), which lies inside the seed's triangle mesh: such a
-    ray meets that seed's mesh."""
-    return np.isfinite(_ellipsoid_entry(fs, o, d, sid, obj, (SEED_INRADIUS,))[0])
+def _seed_conics(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, scale: float = SEED_AA_SCALE) -> np.ndarray:
+    """Image outlines of the seeds of the active panicles as seen by camera ``T_wc`` at this instant:
+    (7, N) float32 over global seed ids (NaN for seeds of other panicles / behind the camera).
 
-
-def _ellipsoid_entry(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray, obj: np.ndarray,
-                     scales: tuple[float, ...]) -> list[np.ndarray]:
-    """Per scale, the distance (m, float32) at which the ray ``o + t d`` enters seed ``sid``'s
-    ellipsoid scaled by it (panicle ``obj`` at this frame's wind pose), inf where it misses or the
-    seed is behind."""
-    f32 = fs.f32
-    n = len(d)
-    o_r = np.empty((n, 3), np.float32)
-    d_r = np.empty((n, 3), np.float32)
-    for k in np.unique(obj):
-        sel = obj == k
-        Di = fs.Dinv32[k]
-        o_r[sel] = _xf(np.broadcast_to(o, (int(sel.sum()), 3)), Di[:3, :3], Di[:3, 3])
-        d_r[sel] = _xf(d[sel], Di[:3, :3])
-    A = f32["axes"][sid]  # (n, 3, 3): columns are the seed's local axes
-    inv_r = 1.0 / f32["radii"][sid]
-    # start the ray at its closest approach to the seed centre (well conditioned: millimetres, not
-    # the camera's metres); the seed is ahead when that point is
-    dp = o_r - f32["xyz"][sid]
-    tc = -_dot(dp, d_r)
-    dp = dp + tc[:, None] * d_r
-    q0 = np.einsum("nij,ni->nj", A, dp) * inv_r  # ray in the unit-sphere frame of the ellipsoid
-    qd = np.einsum("nij,ni->nj", A, d_r) * inv_r
-    a = _dot(qd, qd)
-    b = _dot(q0, qd)
-    q2 = _dot(q0, q0)
-    out = []
-    for sc in scales:  # |q0 + t qd|^2 = sc^2
-        disc = b * b - a * (q2 - np.float32(sc * sc))
-        ok = (disc > 0) & (tc > 0)
-        t = np.full(n, np.inf, np.float32)
-        t[ok] = tc[ok] + (-b[ok] - np.sqrt(disc[ok])) / a[ok]
-        out.append(t)
+    A pixel point ``(u, v)`` lies inside seed ``s``'s outline (its ray meets the seed's ellipsoid,
+    semi-axes scaled by ``scale``) iff ``1 + a_u du + a_v dv + c_uu du^2 + c_uv du dv + c_vv dv^2 >= 0``
+    with ``du = u - u_c``, ``dv = v - v_c``; rows are ``u_c, v_c, a_u, a_v, c_uu, c_uv, c_vv``.
+    Derivation: with ``G = A diag(1/r^2) A^T`` and the centre ``c`` in the camera frame, the ray ``t x``
+    (``x = K^-1 (u, v, 1)``) meets the ellipsoid iff ``x^T E x >= 0``, ``E = g g^T - (c.g - 1) G``,
+    ``g = G c``; expanded about the projected centre ``x_c = c / c_z`` (where ``E x_c = g / c_z``) and
+    divided by ``x_c^T E x_c = c.g / c_z^2 > 0`` it is the polynomial above, evaluated near the centre
+    in float32 without cancellation (the per-seed terms are formed in float64)."""
+    N = len(fs.world.seeds)
+    out = np.full((7, N), np.nan, np.float32)
+    ids = fs.active_seed_ids
+    if len(ids) == 0:
+        return out
+    R, o = T_wc[:3, :3], T_wc[:3, 3]
+    dyn = fs.seed_dyn[:, ids].astype(np.float64)
+    A = dyn[:9].T.reshape(-1, 3, 3)
+    cc = (dyn[9:12].T - o) @ R  # centres, camera frame
+    Ac = np.einsum("ki,nkj->nij", R, A)  # axes (columns), camera frame
+    inv_r2 = 1.0 / (scale * fs.world.seeds.radii[ids]) ** 2
+    G = np.einsum("nij,nj,nkj->nik", Ac, inv_r2, Ac)
+    g = np.einsum("nij,nj->ni", G, cc)
+    cg = np.einsum("ni,ni->n", cc, g)
+    z = cc[:, 2]
+    ok = (z > 1e-3) & (cg > 1.0)  # in front, camera outside the ellipsoid
+    z = np.where(ok, z, 1.0)
+    cg = np.where(ok, cg, 1.0)
+    E2 = g[:, :2, None] * g[:, None, :2] - (cg - 1)[:, None, None] * G[:, :2, :2]
+    fx, fy = calib.fx, calib.fy
+    s2 = z * z / cg
+    rows = np.stack([fx * cc[:, 0] / z + calib.cx, fy * cc[:, 1] / z + calib.cy,
+                     2 * z * g[:, 0] / (cg * fx), 2 * z * g[:, 1] / (cg * fy),
+                     s2 * E2[:, 0, 0] / (fx * fx), 2 * s2 * E2[:, 0, 1] / (fx * fy), s2 * E2[:, 1, 1] / (fy * fy)])
+    rows[:, ~ok] = np.nan
+    out[:, ids] = rows
     return out
+
+
+def _inside_outline(conics: np.ndarray, sid: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """True where pixel point ``(u, v)`` lies inside seed ``sid``'s outline (see ``_seed_conics``)."""
+    c = conics[:, sid]
+    du = u - c[0]
+    dv = v - c[1]
+    f = c[4] * du
+    f += c[2]
+    f += c[5] * dv
+    f *= du
+    f += (c[6] * dv + c[3]) * dv
+    return f >= -1.0
+
+
+def _seed_entry(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray) -> np.ndarray:
+    """Distance (m, float32) at which rays ``o + t d`` (``o`` (3,), ``d`` unit (n, 3)) enter seed ``sid``'s
+    ellipsoid at this instant (the tangent point where they just miss it). Started at the ray's closest
+    approach to the seed centre (millimetres, not the camera's metres: well conditioned in float32)."""
+    dyn = fs.seed_dyn[:, sid]
+    inv_r = np.sqrt(fs.seed_stat[0:3, sid])
+    dT = np.ascontiguousarray(d.T)
+    dp = o.astype(np.float32)[:, None] - dyn[9:12]
+    tc = -_dot3(dp, dT)
+    dp += dT * tc
+    q0 = [(dyn[j] * dp[0] + dyn[3 + j] * dp[1] + dyn[6 + j] * dp[2]) * inv_r[j] for j in range(3)]
+    qd = [(dyn[j] * dT[0] + dyn[3 + j] * dT[1] + dyn[6 + j] * dT[2]) * inv_r[j] for j in range(3)]
+    a = qd[0] * qd[0] + qd[1] * qd[1] + qd[2] * qd[2]
+    b = q0[0] * qd[0] + q0[1] * qd[1] + q0[2] * qd[2]
+    c = q0[0] * q0[0] + q0[1] * q0[1] + q0[2] * q0[2] - 1
+    return (tc - (b + np.sqrt(np.maximum(b * b - a * c, 0))) / a).astype(np.float32)
+
+
+def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib, cfg: SimConfig, h: _Hits,
+               key: np.ndarray, rgb: np.ndarray, covers: _CamCovers, scovers: _CamCovers, light: np.ndarray,
+               light_axes: np.ndarray, rng: np.random.Generator, T_wc: np.ndarray, vis: np.ndarray) -> None:
+    """Adaptive anti-aliasing of ``rgb`` ((H W, 3), in place): ``n x n`` sub-samples on the pixels whose
+    neighbours see another object or depth.
+
+    A sub-sample sees one of the objects seen by its pixel and the pixels it lies towards (its
+    quadrant neighbours), and takes the shading of a pixel that sees that object (no new shading or
+    shadow rays). Which one is decided without rays where geometry allows: seeds by their exact
+    image outline (``_seed_conics``; the nearest covering seed wins unless a non-seed neighbour is
+    nearer), and if no seed covers it and all non-seed neighbours agree, that surface. Only the
+    rest (leaf and stalk silhouettes, a leaf edge in front of a seed, gaps between seeds) is traced,
+    against the objects those pixels see; a traced sub-sample that meets an object none of them
+    sees is shaded on its own."""
+    H, W = calib.height, calib.width
+    n_ss = cfg.imaging.supersample
+    tt = np.minimum(h.t, np.float32(1e3))
+    key2, tt2 = key.reshape(H, W), tt.reshape(H, W)
+    lit2 = tt2 < cfg.imaging.light_cutoff + 0.3
+    edge = np.zeros((H, W), bool)
+    for ea, eb in (((slice(None), slice(1, None)), (slice(None), slice(0, -1))),
+                   ((slice(1, None), slice(None)), (slice(0, -1), slice(None)))):
+        ta, tb = tt2[ea], tt2[eb]
+        e = (key2[ea] != key2[eb]) | (np.abs(ta - tb) > 0.05 * np.minimum(ta, tb))
+        e &= lit2[ea] | lit2[eb]
+        edge[ea] |= e
+        edge[eb] |= e
+    idx = np.nonzero(edge.reshape(-1))[0]
+    if len(idx) == 0:
+        return
+    offs = (np.arange(n_ss) + 0.5) / n_ss - 0.5
+    grid_off = [(float(du), float(dv)) for dv in offs for du in offs]
+    S = len(grid_off)
+    er, ec = np.divmod(idx, W)
+    k0, t0 = key[idx], tt[idx]
+    nbf: dict[tuple[int, int], np.ndarray] = {(0, 0): idx}
+    agree: dict[tuple[int, int], np.ndarray] = {}
+
+    def quadrant(du: float, dv: float) -> list[tuple[int, int]]:
+        sx, sy = int(np.sign(du)), int(np.sign(dv))
+        return [(0, sx), (sy, 0), (sy, sx)]
+
+    for du, dv in grid_off:
+        for nb in quadrant(du, dv):
+            if nb not in nbf:
+                f = np.clip(er + nb[0], 0, H - 1) * W + np.clip(ec + nb[1], 0, W - 1)
+                tn = tt[f]
+                nbf[nb] = f
+                agree[nb] = (key[f] == k0) & (np.abs(tn - t0) <= 0.05 * np.minimum(tn, t0))
+    agree[(0, 0)] = np.ones(len(idx), bool)
+    # the sub-samples whose quadrant neighbours do not all agree with the pixel: (M, 4) candidates
+    ej, cf, pu, pv, jj = [], [], [], [], []
+    for j, (du, dv) in enumerate(grid_off):
+        q = quadrant(du, dv)
+        e = np.nonzero(~(agree[q[0]] & agree[q[1]] & agree[q[2]]))[0]
+        ej.append(e)
+        cf.append(np.stack([idx[e]] + [nbf[nb][e] for nb in q], 1))
+        pu.append((ec[e] + du).astype(np.float32))
+        pv.append((er[e] + dv).astype(np.float32))
+        jj.append(np.full(len(e), j))
+    counts = [len(e) for e in ej]
+    ej_a, cf_a = np.concatenate(ej), np.concatenate(cf)
+    pu_a, pv_a = np.concatenate(pu), np.concatenate(pv)
+    M = len(ej_a)
+    if M == 0:
+        return
+    ar = np.arange(M)
+    ck, ct, cs = key[cf_a], tt[cf_a], h.seed[cf_a]
+    seedc = cs >= 0
+    si = np.nonzero(seedc.reshape(-1))[0]
+    cov = np.zeros(M * 4, bool)
+    if len(si):
+        conics = _seed_conics(fs, T_wc, calib)
+        mrow = si // 4
+        cov[si] = _inside_outline(conics, cs.reshape(-1)[si], pu_a[mrow], pv_a[mrow])
+    cov = cov.reshape(M, 4)
+    ts = np.where(cov, ct, np.float32(np.inf))
+    best = np.argmin(ts, axis=1)
+    tbest = ts[ar, best]
+    nons = ~seedc
+    t_nons = np.where(nons, ct, np.float32(np.inf)).min(axis=1)
+    seen_seed = np.isfinite(tbest) & (t_nons > tbest)
+    fi = np.argmax(nons, axis=1)
+    kf, tf = ck[ar, fi], ct[ar, fi]
+    same = (ck == kf[:, None]) & (np.abs(ct - tf[:, None]) <= 0.05 * np.minimum(ct, tf[:, None]))
+    behind = ~np.isfinite(tbest) & nons.any(axis=1) & (same | seedc).all(axis=1)
+    col = np.where(seen_seed, best, fi)
+    col[ck[ar, col] == ck[:, 0]] = 0  # the pixel's own object: its own shading
+    src = cf_a[ar, col]
+    sub_rgb = np.empty((M, 3), np.float32)
+    traced = np.nonzero(~(seen_seed | behind))[0]
+    fresh = np.zeros(0, np.int64)
+    if len(traced):
+        ps = np.stack([pu_a[traced], pv_a[traced]], 1)
+        ds = _xf(_unit_dirs(calib, ps), R)
+        cft = cf_a[traced]
+        ccls = h.cls[cft]
+        only = np.where((ccls == CLS_STALK) | (ccls == CLS_LEAF), ENV_CODE, h.obj[cft]).astype(np.int32)
+        hs = fs.trace(o, ds, ps, covers, only=only)
+        match = ck[traced] == _object_key(hs)[:, None]
+        has = match.any(axis=1)
+        src[traced[has]] = cft[has, np.argmax(match[has], axis=1)]
+        fresh = traced[~has]
+        if len(fresh):
+            nf = ~has
+            sub = _Hits(hs.t[nf], hs.cls[nf], hs.obj[nf], hs.prim[nf], hs.bary[nf], hs.seed[nf])
+            fresh_rgb = _shade(fs, o, ds[nf], sub, light, light_axes, cfg, rng, ps[nf], scovers)
+    sub_rgb = rgb[src]
+    if len(fresh):
+        sub_rgb[fresh] = fresh_rgb
+    # a sub-sample on another seed than its pixel's is shaded where its ray meets that seed (seed
+    # rims are darker than the neighbouring pixel centre: the surface turns away from the flash),
+    # with the flash visibility of the pixel that sees the seed
+    ns = np.nonzero((h.seed[src] >= 0) & (key[src] != ck[:, 0]))[0]
+    if len(fresh):
+        ns = ns[~np.isin(ns, fresh)]
+    if len(ns):
+        s_src = src[ns]
+        sid = h.seed[s_src]
+        ps = np.stack([pu_a[ns], pv_a[ns]], 1)
+        ds = _xf(_unit_dirs(calib, ps), R)
+        t_hit = _seed_entry(fs, o[0], ds, sid)
+        zero = np.zeros(len(ns), np.int64)
+        sub = _Hits(t_hit, np.full(len(ns), CLS_SEED, np.uint8), h.obj[s_src], zero, np.zeros((len(ns), 2), np.float32),
+                    sid)
+        direct, _, amb, _ = _shade_parts(fs, o, ds, sub, light, light_axes, cfg, rng, vis_given=vis[s_src])
+        sub_rgb[ns] = direct * vis[s_src][:, None] + amb
+    acc = rgb[idx]
+    base = acc.copy()
+    acc *= S
+    start = 0
+    for c in counts:
+        e = ej_a[start:start + c]
+        acc[e] += sub_rgb[start:start + c] - base[e]
+        start += c
+    rgb[idx] = acc * np.float32(1.0 / S)
 
 
 def _camera_dirs(world: World, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
@@ -970,72 +1201,8 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     rgb = direct * vis[:, None] + amb
     seed_img = h.seed.reshape(H, W)
     depth = np.where(np.isfinite(h.t), h.t * dc[:, 2], np.nan).reshape(H, W).astype(np.float32)
-    # adaptive anti-aliasing: supersample pixels whose neighbours see another object or depth;
-    # a sub-sample that sees the same object as the pixel centre reuses the centre's shading
-    n_ss = cfg.imaging.supersample
-    if n_ss > 1:
-        key2 = key.reshape(H, W)
-        tt = np.minimum(h.t, 1e3).reshape(H, W)
-        lit = tt < cfg.imaging.light_cutoff + 0.3
-        edge = np.zeros((H, W), bool)
-        for a, b, ea, eb in ((key2[:, 1:], key2[:, :-1], (slice(None), slice(1, None)), (slice(None), slice(0, -1))),
-                             (key2[1:, :], key2[:-1, :], (slice(1, None), slice(None)), (slice(0, -1), slice(None)))):
-            ta, tb = tt[ea], tt[eb]
-            e = ((a != b) | (np.abs(ta - tb) > 0.05 * np.minimum(ta, tb))) & (lit[ea] | lit[eb])
-            edge[ea] |= e
-            edge[eb] |= e
-        idx = np.nonzero(edge.reshape(-1))[0]
-        if len(idx):
-            # all sub-samples of all edge pixels in one trace (fewer, larger Open3D calls)
-            offs = (np.arange(n_ss) + 0.5) / n_ss - 0.5
-            grid_off = np.array([(du, dv) for dv in offs for du in offs], np.float32)  # (S, 2)
-            S = len(grid_off)
-            # a sub-sample whose quadrant neighbours (the pixels it lies towards) all see the centre's
-            # object at a continuous depth sees that object too: it keeps the centre's shading untraced
-            er, ec = np.divmod(idx, W)
-            kp, tp = np.pad(key2, 1, mode="edge"), np.pad(tt, 1, mode="edge")
-            k0, t0 = key[idx], tt.reshape(-1)[idx]
-            agree: dict[tuple[int, int], np.ndarray] = {}
-            nearer: dict[tuple[int, int], np.ndarray] = {}
-            need = np.zeros((S, len(idx)), bool)
-            front = np.zeros((S, len(idx)), bool)  # a disagreeing quadrant neighbour is nearer
-            for j, (du, dv) in enumerate(grid_off):
-                sx, sy = int(np.sign(du)), int(np.sign(dv))
-                for nb in {(0, sx), (sy, 0), (sy, sx)} - {(0, 0)}:
-                    if nb not in agree:
-                        kn, tn = kp[er + 1 + nb[0], ec + 1 + nb[1]], tp[er + 1 + nb[0], ec + 1 + nb[1]]
-                        agree[nb] = (kn == k0) & (np.abs(tn - t0) <= 0.05 * np.minimum(tn, t0))
-                        nearer[nb] = ~agree[nb] & (tn < t0)
-                    need[j] |= ~agree[nb]
-                    front[j] |= nearer[nb]
-            # a sub-sample of a seed pixel whose ray passes inside the seed's mesh (inscribed
-            # ellipsoid test) and where nothing nearer is seen around sees that seed: not traced
-            cand = np.nonzero((need & ~front & (h.seed[idx] >= 0)[None, :]).reshape(-1))[0]
-            if len(cand):
-                ce = cand % len(idx)
-                pc = pix[idx[ce]] + grid_off[cand // len(idx)]
-                need.reshape(-1)[cand[_inside_seed(fs, o, _xf(_unit_dirs(calib, pc), R), h.seed[idx[ce]],
-                                                   h.obj[idx[ce]])]] = False
-            sel = np.nonzero(need.reshape(-1))[0]
-            ps = (pix[idx][None, :, :] + grid_off[:, None, :]).reshape(-1, 2)[sel]
-            ds = _xf(_unit_dirs(calib, ps), R)
-            # each sub-sample is traced against what its pixel and the pixels it lies towards see
-            code = np.where((h.cls == CLS_STALK) | (h.cls == CLS_LEAF), ENV_CODE, h.obj).reshape(H, W)
-            cp = np.pad(code, 1, mode="edge")
-            only = np.empty((S, len(idx), 4), np.int32)
-            for j, (du, dv) in enumerate(grid_off):
-                sx, sy = int(np.sign(du)), int(np.sign(dv))
-                for m_, nb in enumerate(((0, 0), (0, sx), (sy, 0), (sy, sx))):
-                    only[j, :, m_] = cp[er + 1 + nb[0], ec + 1 + nb[1]]
-            hs = fs.trace(o, ds, ps, covers, only=only.reshape(-1, 4)[sel])
-            ks = _object_key(hs)
-            same = ks == np.tile(key[idx], S)[sel]
-            sub_rgb = np.tile(rgb[idx], (S, 1))
-            diff = np.nonzero(~same)[0]
-            if len(diff):
-                sub = _Hits(hs.t[diff], hs.cls[diff], hs.obj[diff], hs.prim[diff], hs.bary[diff], hs.seed[diff])
-                sub_rgb[sel[diff]] = _shade(fs, o, ds[diff], sub, light, light_axes, cfg, rng, ps[diff], scovers)
-            rgb[idx] = sub_rgb.reshape(S, len(idx), 3).mean(axis=0)
+    if cfg.imaging.supersample > 1:
+        _antialias(fs, o, R, calib, cfg, h, key, rgb, covers, scovers, light, light_axes, rng, T_wc, vis)
     return rgb.reshape(H, W, 3), seed_img, depth, h
 
 
