@@ -1067,18 +1067,18 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
                 nbf[nb] = f
                 agree[nb] = (key[f] == k0) & (np.abs(tn - t0) <= 0.05 * np.minimum(tn, t0))
     agree[(0, 0)] = np.ones(len(idx), bool)
-    # the sub-samples whose quadrant neighbours do not all agree with the pixel: (M, 4) candidates
-    ej, cf, pu, pv, jj = [], [], [], [], []
-    for j, (du, dv) in enumerate(grid_off):
+    # the sub-samples whose quadrant neighbours do not all agree with the pixel: candidates (4, M)
+    # (row 0 the pixel itself), one contiguous row per candidate so the per-row logic stays cheap
+    ej, cf, pu, pv = [], [], [], []
+    for du, dv in grid_off:
         q = quadrant(du, dv)
         e = np.nonzero(~(agree[q[0]] & agree[q[1]] & agree[q[2]]))[0]
         ej.append(e)
-        cf.append(np.stack([idx[e]] + [nbf[nb][e] for nb in q], 1))
+        cf.append(np.stack([idx[e]] + [nbf[nb][e] for nb in q]))
         pu.append((ec[e] + du).astype(np.float32))
         pv.append((er[e] + dv).astype(np.float32))
-        jj.append(np.full(len(e), j))
     counts = [len(e) for e in ej]
-    ej_a, cf_a = np.concatenate(ej), np.concatenate(cf)
+    ej_a, cf_a = np.concatenate(ej), np.concatenate(cf, axis=1)
     pu_a, pv_a = np.concatenate(pu), np.concatenate(pv)
     M = len(ej_a)
     if M == 0:
@@ -1087,36 +1087,46 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     ck, ct, cs = key[cf_a], tt[cf_a], h.seed[cf_a]
     seedc = cs >= 0
     si = np.nonzero(seedc.reshape(-1))[0]
-    cov = np.zeros(M * 4, bool)
+    cov = np.zeros(4 * M, bool)
     if len(si):
         conics = _seed_conics(fs, T_wc, calib)
-        mrow = si // 4
-        cov[si] = _inside_outline(conics, cs.reshape(-1)[si], pu_a[mrow], pv_a[mrow])
-    cov = cov.reshape(M, 4)
-    ts = np.where(cov, ct, np.float32(np.inf))
-    best = np.argmin(ts, axis=1)
-    tbest = ts[ar, best]
-    nons = ~seedc
-    t_nons = np.where(nons, ct, np.float32(np.inf)).min(axis=1)
+        m_ = si % M
+        cov[si] = _inside_outline(conics, cs.reshape(-1)[si], pu_a[m_], pv_a[m_])
+    cov = cov.reshape(4, M)
+    inf = np.float32(np.inf)
+    # nearest covering seed candidate (best, tbest); nearest non-seed candidate; first non-seed one
+    tbest = np.where(cov[0], ct[0], inf)
+    best = np.zeros(M, np.intp)
+    t_nons = np.where(seedc[0], inf, ct[0])
+    fi = np.full(M, -1, np.intp)
+    for r in range(1, 4):
+        tr = np.where(cov[r], ct[r], inf)
+        better = tr < tbest
+        tbest = np.where(better, tr, tbest)
+        best[better] = r
+        np.minimum(t_nons, np.where(seedc[r], inf, ct[r]), out=t_nons)
+    for r in range(3, -1, -1):
+        fi[~seedc[r]] = r
+    any_nons = fi >= 0
+    fi[~any_nons] = 0
     seen_seed = np.isfinite(tbest) & (t_nons > tbest)
-    fi = np.argmax(nons, axis=1)
-    kf, tf = ck[ar, fi], ct[ar, fi]
-    same = (ck == kf[:, None]) & (np.abs(ct - tf[:, None]) <= 0.05 * np.minimum(ct, tf[:, None]))
-    behind = ~np.isfinite(tbest) & nons.any(axis=1) & (same | seedc).all(axis=1)
+    kf, tf = ck[fi, ar], ct[fi, ar]
+    behind = ~np.isfinite(tbest) & any_nons
+    for r in range(4):
+        behind &= seedc[r] | ((ck[r] == kf) & (np.abs(ct[r] - tf) <= 0.05 * np.minimum(ct[r], tf)))
     col = np.where(seen_seed, best, fi)
-    col[ck[ar, col] == ck[:, 0]] = 0  # the pixel's own object: its own shading
-    src = cf_a[ar, col]
-    sub_rgb = np.empty((M, 3), np.float32)
+    col[ck[col, ar] == ck[0]] = 0  # the pixel's own object: its own shading
+    src = cf_a[col, ar]
     traced = np.nonzero(~(seen_seed | behind))[0]
     fresh = np.zeros(0, np.int64)
     if len(traced):
         ps = np.stack([pu_a[traced], pv_a[traced]], 1)
         ds = _xf(_unit_dirs(calib, ps), R)
-        cft = cf_a[traced]
+        cft = cf_a[:, traced].T
         ccls = h.cls[cft]
         only = np.where((ccls == CLS_STALK) | (ccls == CLS_LEAF), ENV_CODE, h.obj[cft]).astype(np.int32)
         hs = fs.trace(o, ds, ps, covers, only=only)
-        match = ck[traced] == _object_key(hs)[:, None]
+        match = ck[:, traced].T == _object_key(hs)[:, None]
         has = match.any(axis=1)
         src[traced[has]] = cft[has, np.argmax(match[has], axis=1)]
         fresh = traced[~has]
@@ -1130,7 +1140,7 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     # a sub-sample on another seed than its pixel's is shaded where its ray meets that seed (seed
     # rims are darker than the neighbouring pixel centre: the surface turns away from the flash),
     # with the flash visibility of the pixel that sees the seed
-    ns = np.nonzero((h.seed[src] >= 0) & (key[src] != ck[:, 0]))[0]
+    ns = np.nonzero((h.seed[src] >= 0) & (key[src] != ck[0]))[0]
     if len(fresh):
         ns = ns[~np.isin(ns, fresh)]
     if len(ns):
