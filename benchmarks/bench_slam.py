@@ -6,7 +6,9 @@ Writes benchmarks/results/bench_slam.json:
   image, for the paper's method (``refine=none``), the session-1 consensus option, the
   ``field`` option (the SLAM default) and the stereo-temporal loop (``loop`` = field +
   ``stereo_carry``; its stereo time contains the temporal matching of both images, measured with
-  two frames of history), on synthetic panicles at the default 1434 px width;
+  two frames of history) and the dense-stereo prior (``sgbm`` = field + ``stereo_prior="sgbm"``;
+  its stereo time contains the SGBM run on the drawn stereo pair, the search range coming from the
+  previous frame), on synthetic panicles at the default 1434 px width;
 * frames/s of association + motion + back-end (iSAM2) per frame on a short synthetic sequence;
 * the baseline measured in the same run: one SIFT detection + brute-force kNN match (cv2) of the
   same stereo pair (seeds drawn as blobs); results are reported as ratios to it.
@@ -26,7 +28,7 @@ import cv2
 import numpy as np
 
 from seedmap.associate.semantic import SeedMatcher, SemanticConfig
-from seedmap.records import Detections, StereoDetections
+from seedmap.records import Detections, StereoDetections, StereoFrame
 from seedmap.slam.config import SlamConfig
 from seedmap.slam.core import SemanticSlam
 from seedmap.slam.synthetic import make_range, observe
@@ -66,6 +68,34 @@ def _time2(fn, reps: int, setup=None) -> tuple[float, float]:
     return best, best_cpu
 
 
+class _Fixed:
+    """Detection source for :meth:`SeedMatcher.features`: the given detections by frame index."""
+
+    def __init__(self, dets: list[StereoDetections]) -> None:
+        self.dets = {d.index: d for d in dets}
+
+    def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
+        return self.dets[frame.index]
+
+
+def _row(res: dict, mode: str, m: SeedMatcher, fa, fb, b: StereoDetections, t_st: float, c_st: float,
+         t_sift: float, c_sift: float, reps: int) -> None:
+    """Time the temporal matching, score both against the synthetic ids, append and print the row."""
+    t_tm, c_tm = _time2(lambda: m.match_temporal(fa, fb), reps)
+    st, tm = fb.stereo, m.match_temporal(fa, fb)
+    prec = float(np.mean(fb.seed_ids_left[st.idx_a] == fb.seed_ids_right[st.idx_b])) if len(st) else None
+    tprec = float(np.mean(fa.seed_ids_left[tm.idx_a] == fb.seed_ids_left[tm.idx_b])) if len(tm) else None
+    row = {"refine": mode, "keypoints_left": len(b.left), "stereo_s": t_st, "temporal_s": t_tm,
+           "stereo_cpu_s": c_st, "temporal_cpu_s": c_tm,
+           "stereo_vs_sift_ratio": t_st / t_sift, "association_frames_per_s": 1.0 / (t_st + t_tm),
+           "association_vs_sift_ratio": (t_st + t_tm) / t_sift,
+           "association_cpu_vs_sift_cpu_ratio": (c_st + c_tm) / c_sift,
+           "stereo_matches": len(st), "temporal_matches": len(tm),
+           "stereo_precision_synthetic": prec, "temporal_precision_synthetic": tprec}
+    res["association"].append(row)
+    print(row, flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="fewer repetitions and frames")
@@ -92,13 +122,30 @@ def main() -> None:
     t_sift, c_sift = _time2(sift_match, reps)
     res = {"machine": platform.processor() or platform.machine(), "image": [calib.width, calib.height],
            "baseline_sift_bf_stereo_s": t_sift, "baseline_sift_bf_stereo_cpu_s": c_sift, "association": []}
-    for mode in ("none", "consensus", "field", "loop"):
+    for mode in ("none", "consensus", "field", "loop", "sgbm"):
         loop = mode == "loop"
-        cfg = SemanticConfig(refine="field" if loop else mode, temporal_prediction=mode != "none", stereo_carry=loop)
+        cfg = SemanticConfig(refine="field" if mode in ("loop", "sgbm") else mode, temporal_prediction=mode != "none",
+                             stereo_carry=loop, stereo_prior="sgbm" if mode == "sgbm" else "none")
         for n in (500, 1000, 2000):
             a, b = _subsample(d0, n, np.random.default_rng(n)), _subsample(d1, n, np.random.default_rng(n + 1))
             pre = _subsample(dm1, n, np.random.default_rng(n + 2))
-            m = SeedMatcher(calib, cfg=cfg)
+            m = SeedMatcher(calib, detector=_Fixed([a, b]), cfg=cfg)
+            if mode == "sgbm":
+                frames = {d.index: StereoFrame(d.index, d.timestamp,
+                                               *(_blob_image(k.keypoints, calib.width, calib.height, rng)
+                                                 for k in (d.left, d.right))) for d in (a, b)}
+
+                def history() -> object:
+                    """frame 4 first, so that frame 5's SGBM range comes from its matches"""
+                    m.reset()
+                    return m.features(frames[a.index])
+
+                fa = history()
+                t_st, c_st = _time2(lambda: m.features(frames[b.index]), reps, history)
+                fa = history()
+                fb = m.features(frames[b.index])
+                _row(res, mode, m, fa, fb, b, t_st, c_st, t_sift, c_sift, reps)
+                continue
 
             def history() -> object:
                 """The loop is sequential: frames 3 and 4 first, so that frame 5 has a history (and
@@ -112,19 +159,7 @@ def main() -> None:
             t_st, c_st = _time2(lambda: m.features_from_detections(b), reps, history)
             fa = history()
             fb = m.features_from_detections(b)
-            t_tm, c_tm = _time2(lambda: m.match_temporal(fa, fb), reps)
-            st, tm = fb.stereo, m.match_temporal(fa, fb)
-            prec = float(np.mean(fb.seed_ids_left[st.idx_a] == fb.seed_ids_right[st.idx_b])) if len(st) else None
-            tprec = float(np.mean(fa.seed_ids_left[tm.idx_a] == fb.seed_ids_left[tm.idx_b])) if len(tm) else None
-            row = {"refine": mode, "keypoints_left": len(b.left), "stereo_s": t_st, "temporal_s": t_tm,
-                   "stereo_cpu_s": c_st, "temporal_cpu_s": c_tm,
-                   "stereo_vs_sift_ratio": t_st / t_sift, "association_frames_per_s": 1.0 / (t_st + t_tm),
-                   "association_vs_sift_ratio": (t_st + t_tm) / t_sift,
-                   "association_cpu_vs_sift_cpu_ratio": (c_st + c_tm) / c_sift,
-                   "stereo_matches": len(st), "temporal_matches": len(tm),
-                   "stereo_precision_synthetic": prec, "temporal_precision_synthetic": tprec}
-            res["association"].append(row)
-            print(row, flush=True)
+            _row(res, mode, m, fa, fb, b, t_st, c_st, t_sift, c_sift, reps)
 
     # per-frame pipeline on a short synthetic sequence (~1,000 keypoints per image)
     for mode in ("none", "consensus", "field", "loop"):

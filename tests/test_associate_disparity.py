@@ -130,3 +130,16 @@ def test_dense_prior_on_the_rendered_range(tiny_range):
     assert lr.stereo["precision"] > new.stereo["precision"]
     assert new.stereo["precision"] >= old.stereo["precision"] - 0.005
     assert new.temporal["precision"] >= 0.99
+
+
+def test_debias_recentres_a_biased_dense_prior():
+    rng = np.random.default_rng(5)
+    kl, kr, disp, _ = _grid_scene(rng)
+    cfg = SlamConfig().association
+    biased = disp + 0.9 + rng.normal(0, 0.2, len(disp))  # SGBM-like constant offset from the keypoint centres
+    plain = match_stereo_keypoints(kl, kr, 1434, GateConfig(), cfg, disparity=biased)
+    fixed = match_stereo_keypoints(kl, kr, 1434, GateConfig(), cfg.model_copy(update={"prior_debias": True}),
+                                   disparity=biased)
+    good = lambda m: int(np.sum(m.idx_a == m.idx_b))  # noqa: E731
+    assert good(fixed) > good(plain)
+    assert np.mean(fixed.idx_a == fixed.idx_b) >= 0.99
