@@ -56,7 +56,7 @@ def test_slam_rerun_and_report(tmp_path, monkeypatch):
     # the recorded final trajectory is the one written to trajectory.tum
     final = np.asarray(rrd_column(rrd, "/world/trajectory/final", "LineStrips3D:strips")[0][0], float)
     np.testing.assert_allclose(final, read_tum(out / "trajectory.tum").positions, atol=1e-5)
-    lm = np.loadtxt(out / "landmarks.csv", delimiter=",", skiprows=1).reshape(-1, 7)
+    lm = np.loadtxt(out / "landmarks.csv", delimiter=",", skiprows=1).reshape(-1, 8)
     rec_lm = np.asarray(rrd_column(rrd, "/world/landmarks_final", "Points3D:positions")[0], float)
     np.testing.assert_allclose(rec_lm, lm[:, 3:6], atol=1e-5)
     # the stereo match lines of frame 0 are horizontal (rectified pair): same row at both ends

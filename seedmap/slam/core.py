@@ -56,12 +56,19 @@ class FrameResult:
 
 @dataclass
 class Landmarks:
-    """Landmarks of the map: ids, world positions (m), number of observations, GT seed id (-1)."""
+    """Landmarks of the map: ids, world positions (m), number of observations, GT seed id (-1),
+    and whether the landmark was a variable of the factor graph (``in_graph``) or a track outside the
+    graph's per-frame budget, placed by its stereo observations from the optimised poses."""
 
     ids: np.ndarray
     xyz: np.ndarray
     n_obs: np.ndarray
     seed_ids: np.ndarray
+    in_graph: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.in_graph is None:
+            self.in_graph = np.ones(len(self.ids), bool)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -105,8 +112,8 @@ class SemanticSlam:
             np.r_[np.full(3, b.between_sigma_rot_rad), np.full(3, b.between_sigma_trans_m)]
         )
         params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(0.01)
-        params.relinearizeSkip = 1
+        params.setRelinearizeThreshold(b.isam_relinearize_threshold)
+        params.relinearizeSkip = b.isam_relinearize_skip
         self.isam = gtsam.ISAM2(params) if b.online == "isam2" else None
         self.graph = gtsam.NonlinearFactorGraph()  # everything added so far (for the final batch)
         self.initial = gtsam.Values()
@@ -157,14 +164,34 @@ class SemanticSlam:
         self.tracks[t] = _Track()
         return t
 
+    def _admission_budget(self, kp: np.ndarray, cand: np.ndarray) -> np.ndarray:
+        """Which of the candidate keypoints ``cand`` (indices into ``kp``) may admit a new landmark
+        this frame: all, or ``max_new_landmarks`` spread over a 16 x 12 image grid (round robin over
+        the cells, so the graph keeps seeds from every part of the view)."""
+        cap = self.cfg.backend.max_new_landmarks
+        ok = np.zeros(len(kp), bool)
+        if cap is None or len(cand) <= cap:
+            ok[cand] = True
+            return ok
+        gx = np.clip((kp[cand, 0] / self.calib.width * 16).astype(int), 0, 15)
+        gy = np.clip((kp[cand, 1] / self.calib.height * 12).astype(int), 0, 11)
+        cell = gy * 16 + gx
+        order = np.argsort(cell, kind="stable")
+        cs = cell[order]
+        rank = np.arange(len(cs)) - np.searchsorted(cs, cs)  # position within its cell
+        pick = order[np.lexsort((cs, rank))][:cap]
+        ok[cand[pick]] = True
+        return ok
+
     def _add_obs(self, tid: int, k: int, o: np.ndarray, sid: int, T_world_cam: np.ndarray,
-                 pt_cam: np.ndarray, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+                 pt_cam: np.ndarray, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                 may_admit: bool = True) -> None:
         tr = self.tracks[tid]
         tr.obs.append((k, float(o[0]), float(o[1]), float(o[2])))
         tr.seed_ids.append(int(sid))
         if tr.admitted:
             graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(*o), self.stereo_noise, X(k), L(tid), self.K))
-        elif len(tr.obs) >= self.cfg.backend.min_observations:
+        elif may_admit and len(tr.obs) >= self.cfg.backend.min_observations:
             tr.admitted = True
             for kk, ul, ur, v in tr.obs:
                 graph.add(gtsam.GenericStereoFactor3D(gtsam.StereoPoint2(ul, ur, v), self.stereo_noise,
@@ -225,6 +252,11 @@ class SemanticSlam:
             values.insert(X(k), _pose3(T))
             inl_a, inl_b = pa[est.inliers], pb[est.inliers]
             track[inl_b] = self._prev_track[inl_a]
+            cand = np.flatnonzero(has3d & (track >= 0))
+            cand = cand[[not self.tracks[int(track[i])].admitted
+                         and len(self.tracks[int(track[i])].obs) + 1 >= self.cfg.backend.min_observations
+                         for i in cand]] if len(cand) else cand
+            may = self._admission_budget(f.kp_left, cand)
             for i in np.flatnonzero(has3d):
                 if track[i] < 0:
                     track[i] = self._new_track()
@@ -232,7 +264,8 @@ class SemanticSlam:
                     tr.obs.append((k, *obs[i]))
                     tr.seed_ids.append(int(sids[i]))
                 else:
-                    self._add_obs(int(track[i]), k, obs[i], sids[i], T, pts[i], graph, values)
+                    self._add_obs(int(track[i]), k, obs[i], sids[i], T, pts[i], graph, values,
+                                  may_admit=bool(may[i]) or self.tracks[int(track[i])].admitted)
 
         # back-end
         t0 = time.perf_counter()
@@ -305,16 +338,33 @@ class SemanticSlam:
         return Trajectory(np.asarray(self.timestamps), poses), values, name
 
     def landmarks(self, values: gtsam.Values | None = None) -> Landmarks:
-        """Admitted landmarks with their positions in ``values`` (default: current estimate)."""
+        """The seed map with positions from ``values`` (default: current estimate): the graph's
+        landmarks, plus every track of >= ``min_observations`` frames that the per-frame budget
+        (``backend.max_new_landmarks``) kept out of the graph, placed at the median of its stereo
+        points transformed with the optimised poses."""
         values = values if values is not None else self._current_values()
-        ids, xyz, nobs, sids = [], [], [], []
+        ids, xyz, nobs, sids, ing = [], [], [], [], []
+        cal = self.calib
         for tid, tr in self.tracks.items():
-            if not tr.admitted or not values.exists(L(tid)):
-                continue
+            if tr.admitted:
+                if not values.exists(L(tid)):
+                    continue
+                p = np.asarray(values.atPoint3(L(tid)))
+            else:
+                if len(tr.obs) < self.cfg.backend.min_observations:
+                    continue
+                o = np.asarray([ob for ob in tr.obs if values.exists(X(ob[0]))], float)
+                if len(o) < self.cfg.backend.min_observations:
+                    continue
+                z = cal.fx * cal.baseline / np.maximum(o[:, 1] - o[:, 2], 1e-9)
+                pc = np.c_[(o[:, 1] - cal.cx) * z / cal.fx, (o[:, 3] - cal.cy) * z / cal.fy, z]
+                pw = [values.atPose3(X(int(k))).transformFrom(pc[j]) for j, k in enumerate(o[:, 0])]
+                p = np.median(np.asarray(pw, float).reshape(-1, 3), axis=0)
             ids.append(tid)
-            xyz.append(values.atPoint3(L(tid)))
+            xyz.append(p)
             nobs.append(len(tr.obs))
             known = [s for s in tr.seed_ids if s >= 0]
             sids.append(Counter(known).most_common(1)[0][0] if known else -1)
+            ing.append(tr.admitted)
         return Landmarks(np.asarray(ids, np.int64), np.asarray(xyz, float).reshape(-1, 3),
-                         np.asarray(nobs, np.int64), np.asarray(sids, np.int64))
+                         np.asarray(nobs, np.int64), np.asarray(sids, np.int64), np.asarray(ing, bool))

@@ -28,13 +28,15 @@ def write_landmarks(folder: Path, lm, clusters: np.ndarray) -> None:
     from seedmap.io.pointcloud import write_labelled_ply
 
     buf = io.StringIO()
-    buf.write("landmark_id,seed_id,cluster_id,x,y,z,n_obs\n")
+    buf.write("landmark_id,seed_id,cluster_id,x,y,z,n_obs,in_graph\n")
+    in_graph = lm.in_graph.astype(np.int64)
     for i in range(len(lm)):
         x, y, z = lm.xyz[i]
-        buf.write(f"{lm.ids[i]},{lm.seed_ids[i]},{clusters[i]},{x:.6f},{y:.6f},{z:.6f},{lm.n_obs[i]}\n")
+        buf.write(f"{lm.ids[i]},{lm.seed_ids[i]},{clusters[i]},{x:.6f},{y:.6f},{z:.6f},{lm.n_obs[i]},{in_graph[i]}\n")
     atomic_write_text(folder / "landmarks.csv", buf.getvalue())
     write_labelled_ply(folder / "landmarks.ply", lm.xyz,
-                       {"seed_id": lm.seed_ids, "landmark_id": lm.ids, "cluster_id": clusters})
+                       {"seed_id": lm.seed_ids, "landmark_id": lm.ids, "cluster_id": clusters,
+                        "in_graph": in_graph})
 
 
 def plot_topview(path: Path, est: Trajectory, gt: Trajectory | None, lm_xyz: np.ndarray, title: str) -> None:

@@ -6,7 +6,7 @@ batch-optimise, then write everything atomically into ``out``:
 
 ``config.yaml`` (resolved), ``metrics.json`` (``asdict(SlamMetrics)``), ``trajectory.tum`` and
 ``trajectory.kitti`` (final estimate; ``trajectory_online.tum`` the per-frame iSAM2 estimate),
-``landmarks.csv`` + ``landmarks.ply`` (seed id / landmark id / panicle cluster id per point),
+``landmarks.csv`` + ``landmarks.ply`` (seed id / landmark id / panicle cluster id / in_graph per point),
 ``topview.png``, ``matches_per_frame.csv`` and ``report.md``.
 """
 
