@@ -50,7 +50,7 @@ def test_seed_outlines_match_the_seed_meshes(scene):
         sc = o3d.t.geometry.RaycastingScene()
         sc.add_triangles(o3d.core.Tensor.from_numpy(V.astype(np.float32)),
                          o3d.core.Tensor.from_numpy(F.astype(np.uint32)))
-        uv = (conics[:2, sid][None] + rng.uniform(-3, 3, (400, 2))).astype(np.float32)
+        uv = (conics[sid, :2][None] + rng.uniform(-3, 3, (400, 2))).astype(np.float32)
         d = render._xf(render._unit_dirs(calib, uv), T[:3, :3])
         t_mesh = sc.cast_rays(render._rays_tensor(np.repeat(o[None], len(d), 0), d))["t_hit"].numpy()
         hit = np.isfinite(t_mesh)
