@@ -1,7 +1,9 @@
 """Detector speed on CPU: frames/s per detector and image size, as a ratio to cv2.GaussianBlur.
 
 Detectors: ``fast-classic`` (session 2) at full and half resolution, and the ``fast`` CNN
-(``fast-cnn``, onnxruntime) at full resolution with 1 and 2 threads, on gated tiles and whole-image.
+(``fast-cnn``, onnxruntime) at full resolution with 1 and 2 threads, on gated tiles and whole-image,
+and per stereo frame with the left and right image in sequence or concurrently (``cnn.stereo_threads``);
+``--cnn-weights OTHER.onnx`` adds the same rows for a second network (e.g. the previous weights).
 
 The baseline (a 5x5-sigma-2 Gaussian blur of the same RGB image) is timed in the same run, so the
 ratio ``detector_ms / blur_ms`` is comparable across machines and loads. Also times one training
@@ -75,6 +77,7 @@ def main() -> None:
     ap.add_argument("--dataset", default=None)
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--no-learned", action="store_true")
+    ap.add_argument("--cnn-weights", default=None, help="a second fast_cnn.onnx to time next to the shipped one")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_detect.json"))
     a = ap.parse_args()
 
@@ -83,6 +86,7 @@ def main() -> None:
     from seedmap.detect.config import CnnConfig, FastConfig
 
     rows = []
+    cnn_sets = [("", [])] + ([(f" [{a.cnn_weights}]", [f"cnn.weights={a.cnn_weights}"])] if a.cnn_weights else [])
     for scale in (1.0, 0.5):
         w, h = int(round(1434 * scale)), int(round(1050 * scale))
         img, src = _image(a.dataset, w, h)
@@ -91,8 +95,9 @@ def main() -> None:
         variants = [("fast-classic", "fast-classic", [f"fast.seed_px={FastConfig().seed_px * scale}"])]
         if scale == 1.0 and default_cnn_path().is_file():
             # the CNN works at the pixel scale it was trained on only (full resolution)
-            variants += [(f"fast-cnn ({t} onnxruntime thread{'s' if t > 1 else ''}, {label})", "fast-cnn",
-                          [f"cnn.threads={t}", f"cnn.tile={tile}"])
+            variants += [(f"fast-cnn{wl} ({t} onnxruntime thread{'s' if t > 1 else ''}, {label})", "fast-cnn",
+                          [f"cnn.threads={t}", f"cnn.tile={tile}"] + wo)
+                         for wl, wo in cnn_sets
                          for t in (1, 2) for tile, label in ((CnnConfig().tile, "gated tiles"), (0, "whole image"))]
         for label, name, ov in variants:
             det = make_detector(name, overrides=ov)
@@ -105,6 +110,35 @@ def main() -> None:
                          "cpu_ms_1thread": cpu_ms, "fps_1core_from_cpu_time": 1000.0 / cpu_ms,
                          "blur_cpu_ms_1thread": cpu_blur, "ratio_vs_blur_cpu": cpu_ms / cpu_blur})
             print(rows[-1], flush=True)
+    if default_cnn_path().is_file():
+        # one stereo frame (left + right image): in sequence, or the two images on two threads
+        from seedmap.records import StereoFrame
+
+        if a.dataset:
+            from seedmap.io.seedmap_dataset import SeedmapDataset
+
+            fr = SeedmapDataset(a.dataset)[0]
+        else:
+            img, _ = _image(None, 1434, 1050)
+            fr = StereoFrame(0, 0.0, img, img[:, ::-1].copy())
+        blur_ms = _time(lambda: cv2.GaussianBlur(fr.left, (0, 0), 2.0), a.repeats * 3)
+        for wl, wo in cnn_sets:
+            for st in (1, 2):
+                det = make_detector("fast-cnn", overrides=[f"cnn.stereo_threads={st}"] + wo)
+                ms = _time(lambda: det.detect_stereo(fr), a.repeats)
+                det.detect_stereo(fr)
+                ts = []
+                for _ in range(a.repeats):
+                    t0 = time.process_time()
+                    det.detect_stereo(fr)
+                    ts.append(time.process_time() - t0)
+                cpu_ms = float(np.median(ts)) * 1000.0
+                rows.append({"detector": f"fast-cnn{wl} stereo frame ({'left and right concurrently, 2 threads' if st > 1 else 'left then right, 1 thread'})",
+                             "width": fr.left.shape[1], "height": fr.left.shape[0], "ms_per_stereo_frame": ms,
+                             "ms": ms / 2, "fps": 2000.0 / ms, "cpu_ms_per_stereo_frame": cpu_ms,
+                             "blur_ms": blur_ms, "ratio_vs_blur": ms / 2 / blur_ms,
+                             "note": "ms and fps per image (half a stereo frame); CPU time of all threads"})
+                print(rows[-1], flush=True)
     if a.dataset:
         from seedmap.io.seedmap_dataset import SeedmapDataset
 

@@ -24,7 +24,7 @@ import numpy as np
 from seedmap.detect.base import Detector, check_image
 from seedmap.detect.config import CnnConfig, FastConfig
 from seedmap.errors import ConfigError, InputError
-from seedmap.records import Detections
+from seedmap.records import Detections, StereoDetections, StereoFrame
 
 
 def default_cnn_path() -> Path:
@@ -54,25 +54,29 @@ def load_session(path: str | Path, threads: int = 0):  # noqa: ANN201 - onnxrunt
     return sess
 
 
-def gate_tiles(f: np.ndarray, cfg: CnnConfig) -> np.ndarray:
+def gate_tiles(f: np.ndarray, cfg: CnnConfig, half: bool = False, shape: tuple[int, int] | None = None
+               ) -> np.ndarray:
     """``(K, 2)`` int ``(ty, tx)`` indices of the ``cfg.tile``-px tiles worth running the network on.
 
     Half-resolution DoG (sigma 0.6 / 1.5 px there, i.e. ~ a 5 px seed at full resolution) of the
-    seediness image ``f`` (uint8), counted per tile.
+    seediness image ``f`` (uint8), counted per tile. ``half``: ``f`` is already at half resolution
+    (the seediness of the half-size image: 4x fewer pixels to convert) and ``shape`` is the
+    full-resolution ``(h, w)``.
     """
-    h, w = f.shape
+    h, w = shape if (half and shape is not None) else (f.shape[0] * (2 if half else 1), f.shape[1] * (2 if half else 1))
     t = int(cfg.tile)
     nty, ntx = -(-h // t), -(-w // t)
     if cfg.gate_min_px <= 0:
         return np.argwhere(np.ones((nty, ntx), bool))
-    f2 = cv2.resize(f, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    f2 = f if half else cv2.resize(f, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
     g1 = cv2.GaussianBlur(f2, (0, 0), 0.6)
     dog = cv2.subtract(g1, cv2.GaussianBlur(f2, (0, 0), 1.5), dtype=cv2.CV_16S)
     hit = (dog > cfg.gate_response) & (g1 > cfg.gate_brightness)
     t2 = t // 2
     ph, pw = nty * t2, ntx * t2
     pad = np.zeros((ph, pw), np.uint16)
-    pad[: hit.shape[0], : hit.shape[1]] = hit
+    hh, ww = min(hit.shape[0], ph), min(hit.shape[1], pw)
+    pad[:hh, :ww] = hit[:hh, :ww]
     cnt = pad.reshape(nty, t2, ntx, t2).sum(axis=(1, 3))
     return np.argwhere(cnt >= cfg.gate_min_px)
 
@@ -80,10 +84,20 @@ def gate_tiles(f: np.ndarray, cfg: CnnConfig) -> np.ndarray:
 _K3 = np.ones((3, 3), np.uint8)
 
 
-def decode(out: np.ndarray, threshold: float, valid: tuple[int, int, int, int], smooth: float = 0.0
-           ) -> tuple[np.ndarray, ...]:
+def peak_kernel(window: int) -> np.ndarray:
+    """Max-filter footprint of the peak test: 3 = the 3x3 square, 5 = the 5x5 disk (corners off)."""
+    if window == 3:
+        return _K3
+    if window == 5:
+        return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    raise ConfigError(f"cnn.peak_window must be 3 or 5, got {window}")
+
+
+def decode(out: np.ndarray, threshold: float, valid: tuple[int, int, int, int], smooth: float = 0.0,
+           kernel: np.ndarray = _K3) -> tuple[np.ndarray, ...]:
     """Peaks of a batch of network outputs ``(N, 7, H, W)``: ``(n, x, y, logit, l, t, r, b, dx, dy)``.
 
+    A peak is a pixel whose heat logit is the maximum over ``kernel`` (3x3 by default).
     Only peaks inside ``valid = (y0, y1, x0, x1)`` (a tile's core, not its margin) are kept.
     ``smooth > 0``: every pixel of a seed predicts the same box edges and keypoint, so the peak's
     values are the average over its 3x3 neighbourhood weighted by ``sigmoid(heat) ** smooth``.
@@ -94,7 +108,7 @@ def decode(out: np.ndarray, threshold: float, valid: tuple[int, int, int, int], 
     heat = np.ascontiguousarray(out[:, 0]).reshape(n * h, w)
     t = min(max(threshold, 1e-6), 1 - 1e-6)
     pk = heat >= np.log(t / (1 - t))
-    pk &= heat >= cv2.dilate(heat, _K3)
+    pk &= heat >= cv2.dilate(heat, kernel)
     pk = pk.reshape(n, h, w)
     win = np.zeros((h, w), bool)
     win[max(y0, 1):min(y1, h - 1), max(x0, 1):min(x1, w - 1)] = True
@@ -134,6 +148,21 @@ class CnnDetector(Detector):
         self.sess = load_session(self.path, self.cfg.threads)
         meta = self.sess.get_modelmeta().custom_metadata_map
         self.info = json.loads(meta.get("info", "{}"))
+        self.kernel = peak_kernel(int(self.cfg.peak_window))
+        self._pool = None
+
+    def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
+        """Left and right image; with ``cnn.stereo_threads = 2`` the two run concurrently (onnxruntime
+        and OpenCV release the GIL), so a stereo frame uses both cores of a 2-core CPU."""
+        if int(self.cfg.stereo_threads) < 2:
+            return super().detect_stereo(frame)
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="fast-cnn")
+        left = self._pool.submit(self.detect, frame.left)
+        right = self.detect(frame.right)
+        return StereoDetections(index=frame.index, timestamp=frame.timestamp, left=left.result(), right=right)
 
     def _run(self, x: np.ndarray) -> np.ndarray:
         return self.sess.run(None, {"image": x})[0]
@@ -151,11 +180,13 @@ class CnnDetector(Detector):
             # even size for the stride-2 body, 1 px border so peaks at the image edge have neighbours
             ph, pw = h + h % 2 + 2, w + w % 2 + 2
             x = np.pad(x, ((0, 0), (0, 0), (1, ph - h - 1), (1, pw - w - 1)))
-            d = decode(self._run(np.ascontiguousarray(x)), c.threshold, (1, h + 1, 1, w + 1), c.smooth)
+            d = decode(self._run(np.ascontiguousarray(x)), c.threshold, (1, h + 1, 1, w + 1), c.smooth, self.kernel)
             parts.append((d[1:], d[1] - 1, d[2] - 1))
         else:
             g = self.fast_cfg.max_green_excess / 16.0 if self.fast_cfg.max_green_excess > 0 else 0.0
-            tiles = gate_tiles(seediness(img, g), c)
+            # the gate works at half resolution: seediness of the half-size image (4x fewer pixels)
+            tiles = gate_tiles(seediness(cv2.resize(img, (w // 2, h // 2), interpolation=cv2.INTER_AREA), g), c,
+                               half=True, shape=(h, w))
             t, m = int(c.tile), int(c.margin)
             s = t + 2 * m
             nty, ntx = -(-h // t), -(-w // t)
@@ -165,7 +196,7 @@ class CnnDetector(Detector):
                 tb = tiles[k0:k0 + bs]
                 x = np.stack([pad[ty * t: ty * t + s, tx * t: tx * t + s] for ty, tx in tb])
                 x = np.ascontiguousarray((x.astype(np.float32) * (1.0 / 255.0)).transpose(0, 3, 1, 2))
-                d = decode(self._run(x), c.threshold, (m, m + t, m, m + t), c.smooth)
+                d = decode(self._run(x), c.threshold, (m, m + t, m, m + t), c.smooth, self.kernel)
                 # image pixel = tile origin (minus the margin) + position in the padded window
                 parts.append((d[1:], d[1] + tb[d[0], 1] * t - m, d[2] + tb[d[0], 0] * t - m))
         if sum(len(p[1]) for p in parts) == 0:

@@ -108,11 +108,15 @@ class CnnConfig(ConfigModel):
     #: box edges and keypoint averaged over the peak's 3x3 neighbours weighted by
     #: sigmoid(heat) ** smooth (0 = the peak pixel's own prediction)
     smooth: float = 4.0
+    #: peak test: heat logit maximal over the 3x3 square (3) or the 5x5 disk (5)
+    peak_window: int = 3
     #: tiles per onnxruntime call
     batch: int = 32
     #: onnxruntime intra-op threads (0 = onnxruntime's default: all cores, which spin-wait and cost
     #: ~3x the CPU on a busy 2-core machine)
     threads: int = 1
+    #: detect_stereo runs the left and the right image concurrently on this many threads (1 or 2)
+    stereo_threads: int = 1
 
 
 class LearnedConfig(ConfigModel):

@@ -7,17 +7,28 @@ offset (px) from the pixel to the seed's keypoint. Most of the work runs at half
 stride-2 convolution, two 3x3 layers, one of them dilated for context); a full-resolution skip from
 the stem keeps the box edges pixel-exact, which a 5 px seed needs for IoU >= 0.5.
 
-Targets come from a simulated dataset's ground truth (``gt/masks`` + ``gt/instances``):
+Targets come from a simulated dataset's ground truth (``gt/masks`` + ``gt/instances``), made per crop
+by :func:`crop_batch` (:class:`CropSpec`):
 
-* heatmap: a Gaussian (sigma ``heat_sigma`` px) at the rounded keypoint of every instance of at
-  least ``min_area`` visible pixels, trained with CenterNet's penalty-reduced focal loss;
+* heatmap: a Gaussian (sigma ``heat_sigma`` px, wider for seeds larger than 5 px) at the rounded
+  keypoint of every instance of at least ``heat_min_area`` visible pixels (the detectable-seed size
+  that ``seedmap eval detect`` and the ``gt`` oracle use, 10 px at 1434 px), trained with CenterNet's
+  penalty-reduced focal loss; slivers from ``min_area`` up to that size are *ignored* by the heatmap
+  loss (neither seed nor background: a detection there is neither a true nor a false positive);
 * keypoint: the projected 3D centre where it is visible (``center_visible``), else the mask centroid;
 * box edges and offset: L1 on every pixel of the instance's mask (FCOS-style: more signal than the
-  centre pixel alone), read at the heatmap peak at inference.
+  centre pixel alone), plus ``iou_weight`` x (1 - GIoU) of the box the four edges describe (on a
+  5 px seed a 1 px edge error halves the IoU; L1 alone pulled the widths toward 5 px); read at the
+  heatmap peak at inference;
+* augmentation: horizontal flip, brightness gain and, for ``scale_prob`` of the crops, a rescale by
+  ``U(scale_lo, scale_hi)`` (0.8-1.7x: close-up arm scans show seeds ~1.5x larger than the field
+  images, where the session-3 network fired twice on a third of the seeds).
 
-Shipped weights: ``seedmap train fast-cnn data/det_s1 data/det_s31 data/det_s32 data/det_s33
-data/det_s34 data/det_s35 --val data/det_s36 --out DIR`` (2,500 steps of 12 crops of 96 px, 445 s
-CPU on one torch thread; ranges rendered with ``seedmap simulate range --length 0.5 --seed N``).
+Shipped weights: see :func:`seedmap.detect.cnn.default_cnn_path` and the README (exact command,
+training time). Session 3: ``seedmap train fast-cnn data/det_s1 data/det_s31 data/det_s32
+data/det_s33 data/det_s34 data/det_s35 --val data/det_s36 --out DIR --steps 2500`` (L1 boxes,
+heat from 4 px, no rescale; 445 s CPU on one torch thread; ranges rendered with ``seedmap simulate
+range --length 0.5 --seed N``).
 
 Inference does not need torch: :func:`export_onnx` writes an ONNX graph that
 :mod:`seedmap.detect.cnn` runs in onnxruntime. Weights/checkpoints are safetensors.
@@ -85,16 +96,19 @@ class TrainImage:
     """One image with compact per-pixel targets (instance index map + per-instance arrays)."""
 
     rgb: np.ndarray  # H x W x 3 uint8
-    inst: np.ndarray  # H x W int16: row into the per-instance arrays, -1 = background / ignored
-    heat: np.ndarray  # H x W float16 target heatmap
+    inst: np.ndarray  # H x W int16: row into the per-instance arrays, -1 = background
     boxes: np.ndarray  # (N, 4) float32 GT boxes
     kp: np.ndarray  # (N, 2) float32 keypoint targets (u, v)
     centers: np.ndarray  # (N, 2) int peak pixels
+    area: np.ndarray  # (N,) float32 visible pixels of each instance
 
 
-def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 4,
-                  heat_sigma: float = 1.0) -> TrainImage:
-    """Targets of one simulated image from its GT label image and instance table."""
+def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 1) -> TrainImage:
+    """Targets of one simulated image from its GT label image and instance table.
+
+    Every instance of at least ``min_area`` visible pixels is kept; :func:`crop_batch` decides per
+    crop (after scaling) which ones are heatmap positives, ignored slivers or box-only pixels.
+    """
     h, w = labels.shape
     lut = np.full(int(max(labels.max(), inst.label.max(initial=0))) + 1, -1, np.int64)
     keep = inst.area >= min_area
@@ -113,22 +127,11 @@ def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 4,
     c = np.round(kp).astype(np.int64)
     c[:, 0] = np.clip(c[:, 0], 0, w - 1)
     c[:, 1] = np.clip(c[:, 1], 0, h - 1)
-    heat = np.zeros((h, w), np.float32)
-    rr = int(np.ceil(3 * heat_sigma))
-    for dy in range(-rr, rr + 1):
-        for dx in range(-rr, rr + 1):
-            g = np.exp(-(dx * dx + dy * dy) / (2 * heat_sigma**2))
-            if g < 0.01:
-                continue
-            x = c[:, 0] + dx
-            y = c[:, 1] + dy
-            ok = (x >= 0) & (x < w) & (y >= 0) & (y < h)
-            np.maximum.at(heat, (y[ok], x[ok]), g)
-    return TrainImage(rgb, idx, heat.astype(np.float16), boxes, kp, c)
+    return TrainImage(rgb, idx, boxes, kp, c, inst.area[rows].astype(np.float32))
 
 
-def load_training_images(datasets: list[str | Path], frames: dict | None = None, min_area: int = 4,
-                         heat_sigma: float = 1.0, progress: bool = False) -> list[TrainImage]:
+def load_training_images(datasets: list[str | Path], frames: dict | None = None, min_area: int = 1,
+                         progress: bool = False) -> list[TrainImage]:
     """Every (frame, camera) image of the simulated ``datasets`` with its targets."""
     from seedmap.io.images import read_rgb
     from seedmap.io.seedmap_dataset import SeedmapDataset
@@ -147,53 +150,123 @@ def load_training_images(datasets: list[str | Path], frames: dict | None = None,
     out = []
     for ds, i, cam in items:
         out.append(image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam),
-                                 ds.gt_instances(i, cam), min_area, heat_sigma))
+                                 ds.gt_instances(i, cam), min_area))
     return out
 
 
+@dataclass
+class CropSpec:
+    """How :func:`crop_batch` turns GT instances into targets (areas in pixels of the *scaled* crop)."""
+
+    #: instances of at least this many visible pixels are heatmap peaks (the detectable-seed size)
+    heat_min_area: float = 10.0
+    #: smaller instances of at least this many pixels are ignored by the heatmap loss (neither seed
+    #: nor background) but still train the box edges; below it they are background
+    min_area: float = 4.0
+    #: Gaussian sigma (px) of a peak; grows with the seed beyond 5 px (sqrt of the box area)
+    heat_sigma: float = 1.0
+    #: fraction of the crops rescaled by a factor drawn uniformly from ``scale_range``
+    scale_prob: float = 0.0
+    scale_range: tuple[float, float] = (0.8, 1.7)
+
+
+def _render_heat(size: int, kp: np.ndarray, sigma: np.ndarray, out: np.ndarray) -> None:
+    """Max of Gaussians at the rounded keypoints ``kp`` (crop pixels) into ``out`` (size x size)."""
+    if len(kp) == 0:
+        return
+    c = np.round(kp).astype(np.int64)
+    rr = int(np.ceil(3 * sigma.max()))
+    for dy in range(-rr, rr + 1):
+        for dx in range(-rr, rr + 1):
+            g = np.exp(-(dx * dx + dy * dy) / (2 * sigma**2))
+            x, y = c[:, 0] + dx, c[:, 1] + dy
+            ok = (g >= 0.01) & (x >= 0) & (x < size) & (y >= 0) & (y < size)
+            np.maximum.at(out, (y[ok], x[ok]), g[ok])
+
+
 def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Generator,
-               seed_fraction: float = 0.75, augment: bool = True) -> tuple[np.ndarray, ...]:
-    """``(x (n,3,S,S), heat (n,S,S), reg (n,6,S,S) = l,t,r,b,dx,dy, reg_mask (n,S,S))`` crops.
+               seed_fraction: float = 0.75, augment: bool = True, spec: CropSpec | None = None
+               ) -> tuple[np.ndarray, ...]:
+    """``(x (n,3,S,S), heat (n,S,S), reg (n,6,S,S) = l,t,r,b,dx,dy, reg_mask (n,S,S), ignore (n,S,S))``.
 
     ``seed_fraction`` of the crops are centred near a random seed, the rest anywhere (leaf edges,
-    stalks, background as negatives). Augmentation: horizontal flip, brightness gain 0.8-1.2.
+    stalks, background as negatives). Augmentation: horizontal flip, brightness gain 0.8-1.2 and,
+    for ``spec.scale_prob`` of the crops, a rescale (seeds seen larger or smaller than in the field
+    images, e.g. close-up arm scans). Box targets use pixel-edge coordinates scaled with the crop,
+    so ``l + r`` is the (scaled) GT box width; ``ignore`` marks sliver pixels the heatmap loss skips.
     """
+    import cv2
+
+    sp = spec or CropSpec()
     X = np.zeros((n, 3, size, size), np.float32)
     H = np.zeros((n, size, size), np.float32)
     R = np.zeros((n, 6, size, size), np.float32)
     M = np.zeros((n, size, size), np.float32)
+    IG = np.zeros((n, size, size), np.float32)
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
     for k in range(n):
         im = images[int(rng.integers(len(images)))]
         h, w = im.inst.shape
+        s = 1.0
+        if augment and sp.scale_prob > 0 and rng.random() < sp.scale_prob:
+            s = float(rng.uniform(*sp.scale_range))
+        src = int(np.ceil(size / s))  # source window (original pixels)
+        src = min(src, w, h)
         if rng.random() < seed_fraction and len(im.centers):
             cx, cy = im.centers[int(rng.integers(len(im.centers)))]
-            x0 = int(np.clip(cx - rng.integers(size), 0, w - size))
-            y0 = int(np.clip(cy - rng.integers(size), 0, h - size))
+            x0 = int(np.clip(cx - rng.integers(src), 0, w - src))
+            y0 = int(np.clip(cy - rng.integers(src), 0, h - src))
         else:
-            x0 = int(rng.integers(0, w - size + 1))
-            y0 = int(rng.integers(0, h - size + 1))
-        sl = (slice(y0, y0 + size), slice(x0, x0 + size))
-        rgb = im.rgb[sl].astype(np.float32) / 255.0
-        idx = im.inst[sl].astype(np.int64)
-        heat = im.heat[sl].astype(np.float32)
-        m = idx >= 0
+            x0 = int(rng.integers(0, w - src + 1))
+            y0 = int(rng.integers(0, h - src + 1))
+        if s == 1.0:
+            sl = (slice(y0, y0 + size), slice(x0, x0 + size))
+            rgb = im.rgb[sl].astype(np.float32) / 255.0
+            idx = im.inst[sl].astype(np.int64)
+        else:
+            # crop pixel x' <- original pixel u: x' = s (u + 0.5 - x0) - 0.5 (pixel centres at integers)
+            A = np.array([[s, 0, s * (0.5 - x0) - 0.5], [0, s, s * (0.5 - y0) - 0.5]], np.float64)
+            rgb = cv2.warpAffine(im.rgb, A, (size, size), flags=cv2.INTER_LINEAR).astype(np.float32) / 255.0
+            idx = cv2.warpAffine(im.inst.astype(np.float32), A, (size, size), flags=cv2.INTER_NEAREST,
+                                 borderValue=-1.0).astype(np.int64)
+        # per-instance targets in crop coordinates (pixel-edge boxes, pixel-centre keypoints)
+        bx = (im.boxes - np.array([x0, y0, x0, y0], np.float32)) * s
+        kp = (im.kp + 0.5 - np.array([x0, y0], np.float32)) * s - 0.5
+        area = im.area * s * s
+        m_all = idx >= 0
+        ii = idx[m_all]
+        ok = area[ii] >= sp.min_area
+        m = np.zeros_like(m_all)
+        m[m_all] = ok
+        ii = ii[ok]
         reg = np.zeros((6, size, size), np.float32)
-        b = im.boxes[idx[m]]
-        kp = im.kp[idx[m]]
-        gx = xx[m] + x0
-        gy = yy[m] + y0
+        gx, gy = xx[m], yy[m]
+        b = bx[ii]
         reg[0][m] = gx - b[:, 0]
         reg[1][m] = gy - b[:, 1]
         reg[2][m] = b[:, 2] - gx
         reg[3][m] = b[:, 3] - gy
-        reg[4][m] = kp[:, 0] - gx
-        reg[5][m] = kp[:, 1] - gy
+        reg[4][m] = kp[ii, 0] - gx
+        reg[5][m] = kp[ii, 1] - gy
+        near = ((kp[:, 0] > -4) & (kp[:, 0] < size + 4) & (kp[:, 1] > -4) & (kp[:, 1] < size + 4))
+        pos = near & (area >= sp.heat_min_area)
+        sig = sp.heat_sigma * np.maximum(1.0, np.sqrt(np.maximum((bx[:, 2] - bx[:, 0]) * (bx[:, 3] - bx[:, 1]), 0)) / 5)
+        heat = np.zeros((size, size), np.float32)
+        _render_heat(size, kp[pos], sig[pos], heat)
+        ign = np.zeros((size, size), np.float32)
+        sliv = near & (area >= sp.min_area) & (area < sp.heat_min_area)
+        _render_heat(size, kp[sliv], np.full(int(sliv.sum()), 0.7, np.float32), ign)
+        ign = (ign > 0.05).astype(np.float32)
+        ig_pix = np.zeros(len(area), bool)
+        ig_pix[sliv] = True
+        ign[m_all] = np.maximum(ign[m_all], ig_pix[idx[m_all]])
+        ign[heat >= 0.999] = 0.0  # never ignore a positive peak
         if augment:
             rgb = np.clip(rgb * rng.uniform(0.8, 1.2), 0, 1)
             if rng.random() < 0.5:
                 rgb = rgb[:, ::-1]
                 heat = heat[:, ::-1]
+                ign = ign[:, ::-1]
                 m = m[:, ::-1]
                 # mirrored column x' = S-1-x; inclusive/exclusive edges: l' = r - 1, r' = l + 1
                 reg = reg[:, :, ::-1][[2, 1, 0, 3, 4, 5]]
@@ -205,25 +278,43 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
         H[k] = heat
         R[k] = reg
         M[k] = m
-    return X, H, R, M
+        IG[k] = ign
+    return X, H, R, M, IG
 
 
-def losses(out, heat, reg, mask):  # noqa: ANN001, ANN201 - torch tensors
-    """``(total, focal, box L1, offset L1)``: CenterNet focal loss + masked L1 (box weight 1)."""
+def losses(out, heat, reg, mask, ignore=None, iou_weight: float = 0.0):  # noqa: ANN001, ANN201 - torch tensors
+    """``(total, focal, box L1, offset L1, box 1-GIoU)``.
+
+    CenterNet's penalty-reduced focal loss (``ignore`` pixels skipped), masked L1 of the four box
+    edges and the keypoint offset, plus ``iou_weight`` x (1 - GIoU) of the box the edges describe:
+    on a 5 px seed a 1 px edge error costs half the IoU, which the L1 loss does not know.
+    """
     import torch
 
     p = torch.sigmoid(out[:, 0]).clamp(1e-4, 1 - 1e-4)
     pos = (heat >= 0.999).float()
     npos = pos.sum().clamp(min=1.0)
+    neg = 1 - pos if ignore is None else (1 - pos) * (1 - ignore)
     lp = -(torch.log(p) * (1 - p) ** 2 * pos).sum()
-    ln = -(torch.log(1 - p) * p**2 * (1 - heat) ** 4 * (1 - pos)).sum()
+    ln = -(torch.log(1 - p) * p**2 * (1 - heat) ** 4 * neg).sum()
     focal = (lp + ln) / npos
     msum = mask.sum().clamp(min=1.0)
     m = mask.unsqueeze(1)
     box = (torch.abs(out[:, 1:5] - reg[:, :4]) * m).sum() / msum / 4
     off = (torch.abs(out[:, 5:7] - reg[:, 4:6]) * m).sum() / msum / 2
-    return focal + box + off, focal, box, off
-
+    pe = out[:, 1:5].clamp(min=0.0)
+    te = reg[:, :4].clamp(min=0.0)
+    iw = torch.minimum(pe[:, 0], te[:, 0]) + torch.minimum(pe[:, 2], te[:, 2])
+    ih = torch.minimum(pe[:, 1], te[:, 1]) + torch.minimum(pe[:, 3], te[:, 3])
+    inter = iw.clamp(min=0) * ih.clamp(min=0)
+    ap = (pe[:, 0] + pe[:, 2]) * (pe[:, 1] + pe[:, 3])
+    at = (te[:, 0] + te[:, 2]) * (te[:, 1] + te[:, 3])
+    union = (ap + at - inter).clamp(min=1e-6)
+    enc = ((torch.maximum(pe[:, 0], te[:, 0]) + torch.maximum(pe[:, 2], te[:, 2]))
+           * (torch.maximum(pe[:, 1], te[:, 1]) + torch.maximum(pe[:, 3], te[:, 3]))).clamp(min=1e-6)
+    giou = inter / union - (enc - union) / enc
+    iou_l = ((1 - giou) * mask).sum() / msum
+    return focal + box + off + iou_weight * iou_l, focal, box, off, iou_l
 
 # ------------------------------------------------------------------------------------------------
 # training loop, checkpoints, export
@@ -239,9 +330,18 @@ class CnnTrainConfig:
     seed: int = 0
     c1: int = 12
     c2: int = 24
+    #: GT instances below this many visible pixels are background; from it up to heat_min_area
+    #: they are ignored by the heatmap loss (slivers: CropSpec)
     min_area: int = 4
+    heat_min_area: float = 10.0
     heat_sigma: float = 1.0
     seed_fraction: float = 0.75
+    #: weight of the box (1 - GIoU) loss next to the L1 edge loss (0 = L1 only, sessions <= 3)
+    iou_weight: float = 1.0
+    #: fraction of crops rescaled by U(scale_lo, scale_hi) (larger seeds of close-up arm scans)
+    scale_prob: float = 0.5
+    scale_lo: float = 0.8
+    scale_hi: float = 1.7
     #: evaluate the held-out loss every this many steps (and write the checkpoint)
     val_every: int = 250
     val_crops: int = 96
@@ -339,8 +439,8 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
     if val_sets:
-        tr = load_training_images(train_sets, None, cfg.min_area, cfg.heat_sigma, progress)
-        va = load_training_images(val_sets, None, cfg.min_area, cfg.heat_sigma, progress)
+        tr = load_training_images(train_sets, None, 1, progress)
+        va = load_training_images(val_sets, None, 1, progress)
     else:
         fr_tr, fr_va = {}, {}
         for d in train_sets:
@@ -349,11 +449,12 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
                 raise InputError("needs at least 2 frames for a held-out split (or pass --val)", d)
             fr_tr[str(d)] = range(n - 1)
             fr_va[str(d)] = [n - 1]
-        tr = load_training_images(train_sets, fr_tr, cfg.min_area, cfg.heat_sigma, progress)
-        va = load_training_images(train_sets, fr_va, cfg.min_area, cfg.heat_sigma, progress)
+        tr = load_training_images(train_sets, fr_tr, 1, progress)
+        va = load_training_images(train_sets, fr_va, 1, progress)
+    spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
     vrng = np.random.default_rng(cfg.seed + 1)
     vbatch = [torch.from_numpy(np.ascontiguousarray(a))
-              for a in crop_batch(va, cfg.val_crops, cfg.crop, vrng, cfg.seed_fraction, augment=False)]
+              for a in crop_batch(va, cfg.val_crops, cfg.crop, vrng, cfg.seed_fraction, augment=False, spec=spec)]
 
     ck = out / "checkpoint.safetensors"
     if resume:
@@ -389,16 +490,16 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     def validate() -> float:
         net.eval()
         with torch.no_grad():
-            v = losses(net(vbatch[0]), vbatch[1], vbatch[2], vbatch[3])
+            v = losses(net(vbatch[0]), *vbatch[1:], iou_weight=cfg.iou_weight)
         net.train()
         return [float(a) for a in v]
 
     prev_cpu = sum(h.get("cpu_s", 0.0) for h in history[-1:]) if history else 0.0
     while step < cfg.steps:
-        x, hm, reg, m = (torch.from_numpy(np.ascontiguousarray(a))
-                         for a in crop_batch(tr, cfg.batch, cfg.crop, rng, cfg.seed_fraction))
+        x, *tg = (torch.from_numpy(np.ascontiguousarray(a))
+                  for a in crop_batch(tr, cfg.batch, cfg.crop, rng, cfg.seed_fraction, spec=spec))
         set_lr(step)
-        loss, *_ = losses(net(x), hm, reg, m)
+        loss, *_ = losses(net(x), *tg, iou_weight=cfg.iou_weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -410,7 +511,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         if step % cfg.val_every == 0 or step == cfg.steps:
             v = validate()
             history.append({"step": step, "train_loss": float(np.mean(run[-cfg.val_every:])), "val_loss": v[0],
-                            "val_focal": v[1], "val_box_l1_px": v[2], "val_offset_l1_px": v[3],
+                            "val_focal": v[1], "val_box_l1_px": v[2], "val_offset_l1_px": v[3], "val_box_1_giou": v[4],
                             "cpu_s": prev_cpu + time.process_time() - t_cpu0})
             save_checkpoint(ck, net, opt, step, cfg, history)
     if bar is not None:
