@@ -723,8 +723,7 @@ def _shade(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.nd
            cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
            scovers: _CamCovers | None = None) -> np.ndarray:
     """Linear RGB radiance (1 = white surface facing the flash at REF_DISTANCE) per ray (float32 (N, 3))."""
-    direct, vis, amb, _ = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers)
-    return direct * vis[:, None] + amb
+    return _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers).radiance(len(d))
 
 
 # per-class specular strength and exponent (Blinn-Phong); seeds: 0.12 on the grain, 0.03 on the glume
@@ -762,11 +761,31 @@ def _rows(table: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return np.take(table, idx, axis=0).T
 
 
+@dataclass
+class _Shading:
+    """Shading of the rays ``live`` (the others are black): radiance = ``direct * vis + amb``."""
+
+    live: np.ndarray  # (m,) int64 ray indices
+    direct: np.ndarray  # (3, m) float32
+    vis: np.ndarray  # (m,) flash visibility (NaN: shadow ray pending)
+    amb: np.ndarray  # (3, m)
+    pending: _PendingShadows
+
+    def radiance(self, n: int, vis: np.ndarray | None = None) -> np.ndarray:
+        """(n, 3) float32 linear RGB of all n rays; ``vis`` (n,): visibility to use instead of ours."""
+        v = self.vis if vis is None else _take(vis, self.live)
+        out = np.zeros((n, 3), np.float32)
+        rad = self.direct * v
+        rad += self.amb
+        out[self.live] = rad.T
+        return out
+
+
 def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light: np.ndarray,
                  light_axes: np.ndarray, cfg: SimConfig, rng: np.random.Generator, pix: np.ndarray | None = None,
                  scovers: _CamCovers | None = None, shadow_rays: np.ndarray | None = None,
-                 vis_given: np.ndarray | None = None):
-    """``(direct (N, 3), flash visibility (N,), ambient (N, 3), pending)``: radiance = direct * vis + ambient.
+                 vis_given: np.ndarray | None = None) -> _Shading:
+    """Direct light, flash visibility and ambient light of the rays that reach a lit surface.
 
     ``vis_given`` (N,): the flash visibility to use instead of tracing shadow rays.
     ``shadow_rays`` (bool (N,), None = all): which lit rays get a shadow ray now; the others get
@@ -778,16 +797,13 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     smaller temporaries are what makes it fast."""
     ic = cfg.imaging
     world = fs.world
-    n = len(d)
-    direct_out = np.zeros((n, 3), np.float32)
-    amb_out = np.zeros((n, 3), np.float32)
-    vis_out = np.ones(n, np.float32)
     far = ic.light_cutoff + 0.3
     live = np.nonzero(h.t < far)[0]
     pending = _PendingShadows.empty()
     m = len(live)
     if m == 0:
-        return direct_out, vis_out, amb_out, pending
+        z = np.zeros((3, 0), np.float32)
+        return _Shading(live, z, np.zeros(0, np.float32), z, pending)
     t = h.t[live]
     dl = np.ascontiguousarray(_take(d, live).T)  # (3, m)
     p = dl * t
@@ -897,14 +913,11 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     spec *= irr
     spec *= ndl > 0
     ndl *= irr
-    for c in range(3):
-        direct_out[live, c] = albedo[c] * ndl + spec
+    direct = albedo * ndl
+    direct += spec
     irr *= np.float32(ic.ambient)
     irr *= ao
-    for c in range(3):
-        amb_out[live, c] = albedo[c] * irr
-    vis_out[live] = vis
-    return direct_out, vis_out, amb_out, pending
+    return _Shading(live, direct, vis, albedo * irr, pending)
 
 
 SHADOW_STRIDE = 2  # flash shadow rays on every 2nd pixel of every 2nd row (plus where none is near)
@@ -1194,8 +1207,8 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
         zero = np.zeros(len(ns), np.int64)
         sub = _Hits(t_hit, np.full(len(ns), CLS_SEED, np.uint8), h.obj[s_src], zero, np.zeros((len(ns), 2), np.float32),
                     sid)
-        direct, _, amb, _ = _shade_parts(fs, o, ds, sub, light, light_axes, cfg, rng, vis_given=vis[s_src])
-        sub_rgb[ns] = direct * vis[s_src][:, None] + amb
+        sh = _shade_parts(fs, o, ds, sub, light, light_axes, cfg, rng, vis_given=vis[s_src])
+        sub_rgb[ns] = sh.radiance(len(ns))
     acc = _take(rgb, idx)
     base = acc.copy()
     acc *= S
@@ -1244,13 +1257,15 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     key = _object_key(h)
     soft = cfg.imaging.shadows and cfg.imaging.flash_radius > 0
     sparse = soft and SHADOW_STRIDE > 1
-    direct, vis, amb, pending = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers,
-                                             _shadow_grid(H, W) if sparse else None)
+    sh = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers,
+                      _shadow_grid(H, W) if sparse else None)
+    vis = np.ones(H * W, np.float32)
+    vis[sh.live] = sh.vis
     if sparse:
-        vis = _shadows_from_samples(fs, vis.reshape(H, W), key.reshape(H, W), pending, scovers).reshape(-1)
+        vis = _shadows_from_samples(fs, vis.reshape(H, W), key.reshape(H, W), sh.pending, scovers).reshape(-1)
     elif soft:
         vis = _filter_visibility(vis.reshape(H, W), key.reshape(H, W)).reshape(-1)
-    rgb = direct * vis[:, None] + amb
+    rgb = sh.radiance(H * W, vis)
     seed_img = h.seed.reshape(H, W)
     depth = np.where(np.isfinite(h.t), h.t * dc[:, 2], np.nan).reshape(H, W).astype(np.float32)
     if cfg.imaging.supersample > 1:
@@ -1286,10 +1301,13 @@ def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random
     np.maximum(img, 0, out=img)
     # shot + read noise as one Gaussian of the combined variance
     noise = rng.standard_normal(img.shape, np.float32)
-    noise *= np.sqrt(img + np.float32(ic.read_noise ** 2))
+    sd = img + np.float32(ic.read_noise ** 2)
+    np.sqrt(sd, out=sd)
+    noise *= sd
     img += noise
-    code = np.clip(img * np.float32(4095.0 / ic.full_well), 0, 4095).astype(np.int16)
-    out = _GAMMA_LUT[code]
+    img *= np.float32(4095.0 / ic.full_well)
+    np.clip(img, 0, 4095, out=img)
+    out = np.take(_GAMMA_LUT, img.astype(np.int16))
     if ic.jpeg_quality is not None:
         ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(ic.jpeg_quality)])
         if ok:
