@@ -1103,9 +1103,9 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     grid_off = [(float(du), float(dv)) for dv in offs for du in offs]
     S = len(grid_off)
     er, ec = np.divmod(idx, W)
-    k0, t0 = key[idx], tt[idx]
+    k0 = np.take(key, idx)
     nbf: dict[tuple[int, int], np.ndarray] = {(0, 0): idx}
-    agree: dict[tuple[int, int], np.ndarray] = {}
+    same: dict[tuple[int, int], np.ndarray] = {}
 
     def quadrant(du: float, dv: float) -> list[tuple[int, int]]:
         sx, sy = int(np.sign(du)), int(np.sign(dv))
@@ -1115,16 +1115,17 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
         for nb in quadrant(du, dv):
             if nb not in nbf:
                 f = np.clip(er + nb[0], 0, H - 1) * W + np.clip(ec + nb[1], 0, W - 1)
-                tn = tt[f]
                 nbf[nb] = f
-                agree[nb] = (key[f] == k0) & (np.abs(tn - t0) <= 0.05 * np.minimum(tn, t0))
-    agree[(0, 0)] = np.ones(len(idx), bool)
-    # the sub-samples whose quadrant neighbours do not all agree with the pixel: candidates (4, M)
+                same[nb] = np.take(key, f) == k0
+    same[(0, 0)] = np.ones(len(idx), bool)
+    # the sub-samples whose quadrant neighbours do not all see the pixel's object: candidates (4, M)
+    # (where they all do, even at another depth (a fold, a grazing surface), the sub-sample sees
+    # that object and keeps the pixel's shading, as a traced sub-sample of the same object would)
     # (row 0 the pixel itself), one contiguous row per candidate so the per-row logic stays cheap
     ej, cf, pu, pv = [], [], [], []
     for du, dv in grid_off:
         q = quadrant(du, dv)
-        e = np.nonzero(~(agree[q[0]] & agree[q[1]] & agree[q[2]]))[0]
+        e = np.nonzero(~(same[q[0]] & same[q[1]] & same[q[2]]))[0]
         ej.append(e)
         cf.append(np.stack([idx[e]] + [nbf[nb][e] for nb in q]))
         pu.append((ec[e] + du).astype(np.float32))
@@ -1138,16 +1139,29 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     ar = np.arange(M)
     ck, ct, cs = np.take(key, cf_a), np.take(tt, cf_a), np.take(h.seed, cf_a)
     seedc = cs >= 0
-    si = np.nonzero(seedc.reshape(-1))[0]
+    # each distinct seed among a sub-sample's candidates is tested once (neighbours often see the
+    # pixel's own seed): a candidate repeating an earlier one copies its answer
+    first = seedc.copy()
+    dup_of = np.full((4, M), -1, np.int8)
+    for r in range(1, 4):
+        for q in range(r):
+            d_ = first[r] & (cs[r] == cs[q])
+            dup_of[r][d_] = q
+            first[r] &= ~d_
+    si = np.nonzero(first.reshape(-1))[0]
     cov = np.zeros(4 * M, bool)
     if len(si):
-        sid = cs.reshape(-1)[si]
+        sid = np.take(cs.reshape(-1), si)
         needed = np.zeros(len(fs.world.seeds), bool)
         needed[sid] = True
         conics = _seed_conics(fs, T_wc, calib, ids=np.nonzero(needed)[0])
         m_ = si % M
-        cov[si] = _inside_outline(conics, sid, pu_a[m_], pv_a[m_])
+        cov[si] = _inside_outline(conics, sid, np.take(pu_a, m_), np.take(pv_a, m_))
     cov = cov.reshape(4, M)
+    for r in range(1, 4):
+        for q in range(r):
+            d_ = dup_of[r] == q
+            cov[r][d_] = cov[q][d_]
     inf = np.float32(np.inf)
     # nearest covering seed candidate (best, tbest); nearest non-seed candidate; first non-seed one
     tbest = np.where(cov[0], ct[0], inf)
@@ -1195,9 +1209,9 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     # a sub-sample on another seed than its pixel's is shaded where its ray meets that seed (seed
     # rims are darker than the neighbouring pixel centre: the surface turns away from the flash),
     # with the flash visibility of the pixel that sees the seed
-    ns = np.nonzero((h.seed[src] >= 0) & (key[src] != ck[0]))[0]
-    if len(fresh):
-        ns = ns[~np.isin(ns, fresh)]
+    on_seed = (np.take(h.seed, src) >= 0) & (np.take(key, src) != ck[0])
+    on_seed[fresh] = False
+    ns = np.nonzero(on_seed)[0]
     if len(ns):
         s_src = src[ns]
         sid = h.seed[s_src]
