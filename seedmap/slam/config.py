@@ -86,10 +86,14 @@ class SlamAssociationConfig(SemanticConfig):
     ``--set association.stereo_prior=sgbm`` (session 4) assigns the stereo pairs around the dense
     SGBM disparity of each left keypoint instead (seedmap.associate.disparity; add
     ``--set association.sgbm_lr_tol_px=3`` for the left-right check, a second SGBM run): higher
-    stereo precision *and* recall with the gt oracle, but it is *not* the default because the SLAM
-    trajectory drifts more with it (1 m range: GT-validated MDM 100 -> 80 % with gt, 100 -> 48 %
-    with fast; SE3-aligned ATE about equal; the same start-of-range drift as ``stereo_carry``: the
-    extra pairs are seeds whose disparity disagrees with their neighbours', which the field rejects).
+    stereo precision *and* recall with the gt oracle (slam_r1: 0.965/0.748 -> 0.979/0.805; fresh
+    seed-13 range: 0.944/0.692 -> 0.981/0.824), but it is *not* the default because SLAM on the 1 m
+    range gets worse with it (gt: ATE 7.3 -> 7.5 mm, first-pose-aligned 22 -> 34 mm; fast:
+    GT-validated MDM 100 -> 76 %, ATE 7.4 -> 7.7 mm) although the 5 m paper2 range gets better
+    (gt: ATE 0.42 -> 0.31 % of the distance), and the prior costs ~220 ms CPU per frame (SGBM).
+    Not explained: neither dropping pairs whose disparity disagrees with their neighbours'
+    (``prior_max_dev_px``) nor re-centring SGBM on the keypoints (``prior_debias``) removed the
+    1 m range's start-of-range drift with the fast detector.
 
     ``--set association.stereo_carry=true`` adds the stereo-temporal loop (stereo carried through
     the left and right temporal matches, parallax test, loop check of the temporal matches): much
