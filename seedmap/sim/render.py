@@ -933,9 +933,9 @@ def _shadow_grid(H: int, W: int) -> np.ndarray:
 
 
 def _edge_aware_sum(num: np.ndarray, den: np.ndarray, key: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """Separable box sums of ``num`` and ``den`` (H x W float32) over the ``(2 radius + 1)^2`` window,
-    counting only the pixels whose ``key`` equals the centre pixel's (no padding copies: each shift
-    adds one shifted slice where the keys agree)."""
+    """Separable box sums of ``num`` and ``den`` (H x W float32, finite) over the ``(2 radius + 1)^2``
+    window, counting only the pixels whose ``key`` equals the centre pixel's (no padding copies: each
+    shift adds one shifted slice times the 0/1 key agreement; ``np.add(where=...)`` is 7x slower)."""
     for axis in (1, 0):
         n2, d2 = num.copy(), den.copy()
         L = key.shape[axis]
@@ -944,11 +944,12 @@ def _edge_aware_sum(num: np.ndarray, den: np.ndarray, key: np.ndarray, radius: i
                 break
             lo = (slice(None), slice(0, L - s)) if axis == 1 else (slice(0, L - s), slice(None))
             hi = (slice(None), slice(s, L)) if axis == 1 else (slice(s, L), slice(None))
-            same = key[lo] == key[hi]
-            np.add(n2[lo], num[hi], out=n2[lo], where=same)
-            np.add(d2[lo], den[hi], out=d2[lo], where=same)
-            np.add(n2[hi], num[lo], out=n2[hi], where=same)
-            np.add(d2[hi], den[lo], out=d2[hi], where=same)
+            same = (key[lo] == key[hi]).view(np.uint8)
+            for src_, dst in ((num, n2), (den, d2)):
+                tmp = np.multiply(src_[hi], same, dtype=np.float32)
+                dst[lo] += tmp
+                np.multiply(src_[lo], same, out=tmp, dtype=np.float32)
+                dst[hi] += tmp
         num, den = n2, d2
     return num, den
 
@@ -979,8 +980,9 @@ def _shadows_from_samples(fs: _FrameScene, vis: np.ndarray, key: np.ndarray, pen
     vb = vis[a:b]
     w = np.isfinite(vb)
     num, den = _edge_aware_sum(np.where(w, vb, np.float32(0)), w.astype(np.float32), key[a:b], r)
-    np.divide(num, den, out=num, where=den > 0)
-    num[den <= 0] = 1.0
+    empty = den <= 0
+    num /= np.maximum(den, np.float32(1e-12))
+    num[empty] = 1.0
     out[a:b] = num
     if len(pending.idx):
         rr, cc = np.divmod(pending.idx, W)
