@@ -1181,25 +1181,31 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     any_nons = fi >= 0
     fi[~any_nons] = 0
     seen_seed = np.isfinite(tbest) & (t_nons > tbest)
-    kf, tf = ck[fi, ar], ct[fi, ar]
+    def pick(a: np.ndarray, row: np.ndarray) -> np.ndarray:  # a[row[m], m] (a flat take: fast)
+        return np.take(a.reshape(-1), row * M + ar)
+
+    kf, tf = pick(ck, fi), pick(ct, fi)
     behind = ~np.isfinite(tbest) & any_nons
     for r in range(4):
         behind &= seedc[r] | ((ck[r] == kf) & (np.abs(ct[r] - tf) <= 0.05 * np.minimum(ct[r], tf)))
     col = np.where(seen_seed, best, fi)
-    col[ck[col, ar] == ck[0]] = 0  # the pixel's own object: its own shading
-    src = cf_a[col, ar]
+    col[pick(ck, col) == ck[0]] = 0  # the pixel's own object: its own shading
+    src = pick(cf_a, col)
     traced = np.nonzero(~(seen_seed | behind))[0]
     fresh = np.zeros(0, np.int64)
     if len(traced):
         ps = np.stack([pu_a[traced], pv_a[traced]], 1)
         ds = _xf(_unit_dirs(calib, ps), R)
-        cft = cf_a[:, traced].T
-        ccls = h.cls[cft]
-        only = np.where((ccls == CLS_STALK) | (ccls == CLS_LEAF), ENV_CODE, h.obj[cft]).astype(np.int32)
+        cft = np.ascontiguousarray(np.take(cf_a, traced, axis=1).T)  # (n, 4)
+        ccls = np.take(h.cls, cft)
+        only = np.where((ccls == CLS_STALK) | (ccls == CLS_LEAF), ENV_CODE, np.take(h.obj, cft)).astype(np.int32)
         hs = fs.trace(o, ds, ps, covers, only=only)
-        match = ck[:, traced].T == _object_key(hs)[:, None]
-        has = match.any(axis=1)
-        src[traced[has]] = cft[has, np.argmax(match[has], axis=1)]
+        match = np.take(ck, traced, axis=1) == _object_key(hs)  # (4, n)
+        first = np.full(len(traced), -1, np.intp)
+        for r in range(3, -1, -1):
+            first[match[r]] = r
+        has = first >= 0
+        src[traced[has]] = np.take(cft.reshape(-1), np.nonzero(has)[0] * 4 + first[has])
         fresh = traced[~has]
         if len(fresh):
             nf = ~has
