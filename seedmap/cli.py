@@ -264,11 +264,18 @@ def train_fast_cnn_cmd(
     crop: int = typer.Option(96, "--crop", help="Crop size (px)."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and crops."),
     threads: int = typer.Option(1, "--threads", help="torch CPU threads."),
-    c1: int = typer.Option(12, "--c1", help="Channels at full resolution."),
-    c2: int = typer.Option(24, "--c2", help="Channels at half resolution."),
+    c1: int = typer.Option(8, "--c1", help="Channels at full resolution (session 3: 12)."),
+    c2: int = typer.Option(16, "--c2", help="Channels at half resolution (session 3: 24)."),
+    iou_weight: float = typer.Option(1.0, "--iou-weight", help="Weight of the box 1-GIoU loss (0 = L1 only)."),
+    scale_prob: float = typer.Option(0.5, "--scale-prob", help="Fraction of crops rescaled by 0.8-1.7x."),
+    heat_min_area: float = typer.Option(10.0, "--heat-min-area",
+                                        help="Seeds with fewer visible px are no heatmap peaks (4-px slivers "
+                                             "up to it are ignored)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
-    """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX."""
+    """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
+
+    The defaults reproduce the shipped weights (session 4) from data/det_s1 and det_s31-35, --val data/det_s36."""
     from seedmap.detect.learned import require_torch
 
     require_torch()
@@ -279,7 +286,8 @@ def train_fast_cnn_cmd(
             raise SeedmapError(f"{d}: dataset folder not found")
     if (out / "fast_cnn.onnx").exists() and not resume:
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
-    cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2)
+    cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
+                         iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "

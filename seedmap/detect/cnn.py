@@ -11,6 +11,13 @@ of context) that a cheap gate marks: the seediness image (bright, non-green; see
 response above ``gate_response``. Peaks: 3x3 max-pool non-maximum suppression of the heatmap, above
 ``threshold``. Box = peak pixel +- the rounded predicted edge distances (x0, y0 inclusive, x1, y1
 exclusive); keypoint = peak pixel + predicted offset; ellipse = axis-aligned, inscribed in the box.
+
+Measured and not adopted (session 4, det_s36): onnxruntime int8 static quantization (QDQ or
+QOperator, calibrated on training tiles) is *slower* on this AVX2 CPU at 8-24 channels (92 / 105 ms
+vs 85 ms fp32 for the session-3 network); dropping a peak whose keypoint lies in a stronger peak's
+box costs recall (F1 0.824-0.852 vs 0.855); a 5x5 peak window (``peak_window``) trades recall for
+precision at about equal F1. Session-4 weights: 8/16 channels (2.2x fewer multiply-adds than
+session 3's 12/24), 46 ms CPU per 1434x1050 image on one thread.
 """
 
 from __future__ import annotations
@@ -28,7 +35,8 @@ from seedmap.records import Detections, StereoDetections, StereoFrame
 
 
 def default_cnn_path() -> Path:
-    """The shipped network (trained on the simulated ranges of seeds 1 and 31-35, held-out seed 36)."""
+    """The shipped network (trained on the simulated ranges of seeds 1 and 31-35, held-out seed 36;
+    command and numbers in :mod:`seedmap.detect.train_cnn`)."""
     return Path(__file__).with_name("weights") / "fast_cnn.onnx"
 
 

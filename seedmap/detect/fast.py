@@ -1,7 +1,8 @@
 """The ``fast`` detector: classical, vectorised OpenCV + numpy, real-time on a 2-core CPU.
 
 Since session 3 the name ``fast`` runs the small CNN of :mod:`seedmap.detect.cnn` when its shipped
-weights exist (``fast.use_cnn``; held-out F1 0.753 / 0.758 vs 0.740 / 0.694 on seeds 2 / 21); this
+weights exist (``fast.use_cnn``; held-out F1 at the detectable-seed size, session-4 weights: 0.871 / 0.888
+vs 0.855 / 0.826 on seeds 2 / 21); this
 classical pipeline stays available as ``fast-classic`` (and with ``fast.use_cnn=false``).
 
 Why classical: with flash imaging the seeds are the bright, compact, non-green blobs of the image

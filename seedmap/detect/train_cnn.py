@@ -24,11 +24,11 @@ by :func:`crop_batch` (:class:`CropSpec`):
   ``U(scale_lo, scale_hi)`` (0.8-1.7x: close-up arm scans show seeds ~1.5x larger than the field
   images, where the session-3 network fired twice on a third of the seeds).
 
-Shipped weights: see :func:`seedmap.detect.cnn.default_cnn_path` and the README (exact command,
-training time). Session 3: ``seedmap train fast-cnn data/det_s1 data/det_s31 data/det_s32
-data/det_s33 data/det_s34 data/det_s35 --val data/det_s36 --out DIR --steps 2500`` (L1 boxes,
-heat from 4 px, no rescale; 445 s CPU on one torch thread; ranges rendered with ``seedmap simulate
-range --length 0.5 --seed N``).
+Shipped weights (session 4): ``seedmap train fast-cnn data/det_s1 data/det_s31 data/det_s32
+data/det_s33 data/det_s34 data/det_s35 --val data/det_s36 --out DIR`` (the defaults: 5,000 steps of
+12 crops of 96 px, c1/c2 = 8/16; 553 s CPU on one torch thread; ranges rendered with ``seedmap
+simulate range --length 0.5 --seed N``). Session 3: 12/24 channels, L1 boxes only, heat from 4 px,
+no rescale, 2,500 steps (445 s CPU).
 
 Inference does not need torch: :func:`export_onnx` writes an ONNX graph that
 :mod:`seedmap.detect.cnn` runs in onnxruntime. Weights/checkpoints are safetensors.
@@ -49,7 +49,7 @@ from seedmap.errors import InputError
 N_OUT = 7
 
 
-def build_net(c1: int = 12, c2: int = 24):
+def build_net(c1: int = 8, c2: int = 16):
     """The torch :class:`SeedNet` (imports torch; training and export only)."""
     import torch
     from torch import nn
@@ -323,13 +323,14 @@ def losses(out, heat, reg, mask, ignore=None, iou_weight: float = 0.0):  # noqa:
 
 @dataclass
 class CnnTrainConfig:
-    steps: int = 3000
+    steps: int = 5000
     batch: int = 12
     crop: int = 96
     lr: float = 2e-3
     seed: int = 0
-    c1: int = 12
-    c2: int = 24
+    #: channels at full / half resolution (session 4: 8 / 16, 2.2x fewer multiply-adds than 12 / 24)
+    c1: int = 8
+    c2: int = 16
     #: GT instances below this many visible pixels are background; from it up to heat_min_area
     #: they are ignored by the heatmap loss (slivers: CropSpec)
     min_area: int = 4
