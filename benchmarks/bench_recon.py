@@ -133,10 +133,10 @@ def _count_diagnostics(obs: dict, root: Path, gt_ids: np.ndarray) -> dict:
 
 
 def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, oracle: bool,
-                  kps: list | None = None, calib=None, count_set: tuple[str, ...] = ()) -> dict:
+                  kps: list | None = None, calib=None, count_set: tuple[str, ...] = (), det: str = "gt") -> dict:
     """Every count method on one reconstruction's observations (``multiview``: on the 2D
-    detections ``kps`` with the registered poses, CountConfig overrides ``count_set`` key=value),
-    against both references."""
+    detections ``kps`` with the registered poses, CountConfig overrides ``count_set`` key=value, then
+    the profile of detector ``det`` as the pipeline applies it), against both references."""
     from seedmap.config import apply_overrides
     from seedmap.recon.config import CountConfig
     from seedmap.recon.count import count_multiview, count_seeds
@@ -146,7 +146,7 @@ def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, ora
     for meth in COUNT_METHODS:
         c1 = time.process_time()
         if meth == "multiview":
-            mv_cfg = CountConfig(**apply_overrides({"method": meth}, count_set))
+            mv_cfg = CountConfig(**apply_overrides({"method": meth}, count_set)).for_detector(det)
             n = count_multiview(kps, obs["poses"], calib, mv_cfg).count
         else:
             n = count_seeds(obs["xyz"], obs["view"], obs["diam"], CountConfig(method=meth), origin=origin).count
@@ -218,7 +218,7 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                     kps, calib = _detections_cache(root, det, _kps_cache_path(out / "cache", s, det))
                     row["modes"][mode].update(_count_fields(obs, row["gt_visible"], gt_countable_seeds(root, 12),
                                                             root, row["oracle"] and mode == "seeds", kps, calib,
-                                                            count_set))
+                                                            count_set, det))
                 (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
                 rows.append(row)
                 continue
@@ -251,7 +251,7 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                     _save_kps(kp_path, [v.keypoints if v is not None else None for v in prep.views])
                 kps, calib = _detections_cache(root, det, kp_path)
                 m.update(_count_fields(obs, gt_vis, countable, root, rec.oracle and mode == "seeds", kps, calib,
-                                       count_set))
+                                       count_set, det))
                 row["modes"][mode] = m
             (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
             rows.append(row)

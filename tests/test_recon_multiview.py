@@ -99,7 +99,11 @@ def test_multiview_counts_seeds_from_noisy_keypoints_with_dropouts():
     a = cnt.assignment
     pure = [np.unique(lid[a == s]).size == 1 for s in range(cnt.count)]
     assert np.mean(pure) > 0.98
-    assert np.all(det.support[det.track >= 0] >= CountConfig().mv_min_support)
+    # stereo matches need the neighbours' support (pairs claimed by growing tracks are checked by
+    # their track's reprojection instead)
+    _, det0 = count_multiview(views, poses, CALIB, CountConfig(mv_grow_px=0.0), detail=True)
+    assert np.all(det0.support[det0.track >= 0] >= CountConfig().mv_min_support)
+    assert np.median(det.support[det.track >= 0]) >= CountConfig().mv_min_support
 
 
 def test_multiview_joins_a_seed_seen_from_two_arcs_and_ignores_unconfirmed_clutter():
@@ -184,3 +188,81 @@ def test_second_linking_pass_recovers_seeds_the_tight_first_pass_missed():
                                                             mv_relink_min_support=9.0)).count == tight
     # off by default (mv_relink_px <= mv_link_px): the default count is the first pass alone
     assert CountConfig().mv_relink_px <= CountConfig().mv_link_px
+
+
+def test_a_seed_seen_in_views_0_1_and_5_6_counts_once():
+    # every seed keeps only the first two and the last two views of its arc (a gap of >= 3 views
+    # in between, beyond max_lag): the long-gap join must make each one seed, not two
+    views, poses, ids_l, _, _ = scan(np.random.default_rng(11), drop=0.0)
+    ids_r = scan.ids_r
+    seen = {}
+    for v, il in enumerate(ids_l):
+        for i in il[il >= 0]:
+            seen.setdefault(int(i), []).append(v)
+    keep_views = {}
+    for i, vs in seen.items():
+        vs = sorted(vs)
+        if vs[0] == 0 and vs[-1] == VIEWS - 1:  # arc across the wrap: unroll it
+            vs = sorted((v + VIEWS // 2) % VIEWS for v in vs)
+            vs = [(v - VIEWS // 2) % VIEWS for v in vs]
+        if len(vs) >= 7:
+            keep_views[i] = set(vs[:2]) | set(vs[-2:])
+    out = []
+    for v, kp in enumerate(views):
+        ml = np.array([int(i) in keep_views and v in keep_views[int(i)] for i in ids_l[v]], bool)
+        mr = np.array([int(i) in keep_views and v in keep_views[int(i)] for i in ids_r[v]], bool)
+        out.append(StereoKeypoints(kp.left[ml], kp.right[mr], kp.left_size[ml]))
+    assert len(keep_views) > 100
+    cnt = count_multiview(out, poses, CALIB, CountConfig())
+    assert abs(cnt.count - len(keep_views)) <= 0.05 * len(keep_views), (cnt.count, len(keep_views))
+    # without the long-gap join each seed is two fragments
+    split = count_multiview(out, poses, CALIB, CountConfig(mv_dedupe=0.0)).count
+    assert split > 1.4 * len(keep_views)
+
+
+def biased_scan(seed: int, bias_px: float):
+    """The cylinder scan with a per-seed-and-view horizontal offset of the right keypoint (uniform in
+    +-``bias_px``): a partly hidden seed's visible centre differs between the left and the right
+    image, so its stereo depth is off by up to ~1.3 mm per px at 0.3 m."""
+    views, poses, ids_l, countable, centres = scan(np.random.default_rng(seed), noise_px=0.2, drop=0.05)
+    rng = np.random.default_rng(seed + 100)
+    out = [StereoKeypoints(kp.left, kp.right + np.column_stack([rng.uniform(-bias_px, bias_px, len(kp.right)),
+                                                                np.zeros(len(kp.right))]), kp.left_size)
+           for kp in views]
+    return out, poses, ids_l, countable
+
+
+def test_joint_links_count_seeds_whose_stereo_depth_is_biased():
+    views, poses, ids_l, countable = biased_scan(12, 1.5)
+    lid = np.concatenate(ids_l)
+    cnt = count_multiview(views, poses, CALIB, CountConfig(mv_link_joint=True, mv_link_px=1.5))
+    assert abs(cnt.count - len(countable)) <= 0.03 * len(countable), (cnt.count, len(countable))
+    pure = [np.unique(lid[cnt.assignment == s]).size == 1 for s in range(cnt.count)]
+    assert np.mean(pure) > 0.93  # the looser joint test sometimes takes a neighbour's keypoint (~5 %)
+    # the joint test does link: with a single view per track nothing would count
+    assert np.median(cnt.n_views) >= 5
+
+
+def test_growing_stays_inside_the_arc_of_views_of_a_track():
+    # at the end of its arc a seed turns away and its foreshortened neighbour projects where it would
+    # be: growing beyond the arc claims the neighbour (impure tracks), filling gaps inside it does not
+    views, poses, ids_l, _, _ = scan(np.random.default_rng(0))
+    lid = np.concatenate(ids_l)
+
+    def purity(cfg: CountConfig) -> float:
+        cnt = count_multiview(views, poses, CALIB, cfg)
+        return float(np.mean([np.unique(lid[cnt.assignment == s]).size == 1 for s in range(cnt.count)]))
+
+    assert purity(CountConfig()) > 0.98
+    assert purity(CountConfig(mv_grow_fill_only=False)) < 0.95
+
+
+def test_detector_profiles_are_applied_once_and_can_be_switched_off():
+    cfg = CountConfig()
+    gt = cfg.for_detector("gt")
+    assert gt.mv_link_joint and not gt.detector_profile and gt.mv_link_px == 1.5
+    assert gt.for_detector("gt") is gt  # applied once
+    assert cfg.for_detector("fast").mv_merge_px == 3.0
+    assert cfg.for_detector("some-new-detector") is cfg
+    assert not CountConfig(detector_profile=False).for_detector("gt").mv_link_joint
+    assert ReconConfig(detector="gt").count.for_detector("gt").mv_link_joint

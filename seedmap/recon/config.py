@@ -6,7 +6,22 @@ from typing import Literal
 
 from pydantic import Field
 
-from seedmap.config import ConfigModel
+from seedmap.config import ConfigModel, apply_overrides
+
+#: Per-detector settings of the multiview counter, applied on top of CountConfig by
+#: CountConfig.for_detector (the pipeline and ``seedmap count`` pick them from the run's detector
+#: name). Chosen on the tuning panicles 95-100 only (benchmarks/bench_recon.py, README):
+#: ``gt`` -- the oracle's keypoints are visible-mask centres, exact for whole seeds but biased
+#: for partly hidden ones (left and right see different parts), so two views are linked jointly
+#: (four rays) with a tighter tolerance; the detectors' noisier keypoints and false positives make
+#: ghost tracks that way, so they keep the plain link test. ``fast`` (CNN) fires 2-3 px apart on one
+#: seed: keypoints are merged first; both detectors fire more than once on the arm-scan seeds
+#: (larger than the row-image seeds they were trained on), so close tracks sharing views are joined.
+DETECTOR_PROFILES: dict[str, list[str]] = {
+    "gt": ["mv_link_joint=true", "mv_link_px=1.5"],
+    "fast": ["mv_merge_px=3", "mv_dedupe_shared=0.8"],
+    "fast-classic": ["mv_dedupe_shared=1.0"],
+}
 
 
 class SgbmConfig(ConfigModel):
@@ -113,8 +128,15 @@ class CountConfig(ConfigModel):
                                                                  "matches with at least this support")
     mv_max_reproj_px: float = Field(2.5, gt=0, description="multiview: observations reprojecting farther from "
                                                            "their track's point are dropped (px)")
+    mv_drop_worst_only: bool = Field(True, description="multiview: per re-triangulation round drop only the worst "
+                                                        "observation of each track beyond mv_max_reproj_px (one wrong "
+                                                        "observation no longer takes the good ones with it)")
+    mv_reproj_rounds: int = Field(12, ge=1, description="multiview: re-triangulation rounds of the reprojection check")
     mv_dedupe: float = Field(0.9, ge=0, description="multiview: join counted tracks closer than this many median "
                                                     "seed diameters that share no view")
+    mv_dedupe_shared: float = Field(0.0, ge=0, description="multiview: join counted tracks closer than this many "
+                                                           "median seed diameters even when they share views "
+                                                           "(duplicate detections of one seed; 0 = off)")
     mv_surface_tol: float = Field(0.0, ge=0, description="multiview: drop stereo match candidates whose depth "
                                                          "lies more than this behind (and, unless "
                                                          "mv_surface_front_tol, in front of) the SGBM surface depth "
@@ -127,6 +149,41 @@ class CountConfig(ConfigModel):
                                                        "this (px; duplicate detections of one seed; 0 = off)")
     mv_min_depth: float = Field(0.2, gt=0, description="multiview: nearest seed depth considered (m)")
     mv_max_depth: float = Field(0.42, gt=0, description="multiview: farthest seed depth considered (m)")
+    mv_link_joint: bool = Field(False, description="multiview: link two stereo matches when the point triangulated "
+                                                   "from their four rays reprojects within the tolerance into all "
+                                                   "four images (instead of projecting each one's stereo point "
+                                                   "into the other view)")
+    mv_link_search: float = Field(2.0, ge=1, description="multiview, joint links: partner search radius in link "
+                                                         "tolerances")
+    mv_grow_px: float = Field(2.0, ge=0, description="multiview: a track of >= min_observations views claims the "
+                                                      "left+right keypoints within this distance of its projection in "
+                                                      "the views around it (px; 0 = off)")
+    mv_grow_unique_px: float = Field(4.0, ge=0, description="multiview: a track claims a left keypoint only when "
+                                                            "no other left keypoint lies within this distance of "
+                                                            "its projection (px; 0 = no check)")
+    mv_grow_fill_only: bool = Field(True, description="multiview: grow only into views with views of the track "
+                                                      "on both sides (within mv_grow_views), not beyond its arc")
+    mv_grow_views: int = Field(3, ge=1, description="multiview: views beyond a track's own on each side it may "
+                                                    "grow into")
+    mv_grow_passes: int = Field(2, ge=1, description="multiview: growing passes (each followed by re-triangulation)")
+
+
+    detector_profile: bool = Field(True, description="multiview: apply detector_profiles[detector] on top of these "
+                                                     "settings (false = exactly these settings)")
+    detector_profiles: dict[str, list[str]] = Field(default_factory=lambda: {k: list(v) for k, v in
+                                                                              DETECTOR_PROFILES.items()},
+                                                    description="multiview: key=value CountConfig overrides per "
+                                                                "detector name")
+
+    def for_detector(self, detector: str) -> CountConfig:
+        """These settings with the profile of ``detector`` applied (unless ``detector_profile`` is
+        false or the detector has none); the result has ``detector_profile`` false (applied once)."""
+        ov = self.detector_profiles.get(detector, []) if self.detector_profile else []
+        if not ov:
+            return self
+        data = apply_overrides(self.model_dump(), list(ov))
+        data["detector_profile"] = False
+        return type(self).model_validate(data)
 
 
 class ReconConfig(ConfigModel):

@@ -10,7 +10,8 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
    (the CNN ``fast`` detector does on ~30 % of the seeds, peaks 1-3 px apart) otherwise makes two
    consistent tracks per seed. Held-out (panicles 101-110, seeds registration, vs countable):
    ``fast`` 45.7 % -> 11.1 % MAPE with ``mv_merge_px=3`` + ``mv_surface_tol=0.005``; the ``gt``
-   detector 7.4 % -> 10.6 %, so neither option is the default.
+   detector 7.4 % -> 10.6 %, so it is not the default but part of the ``fast`` detector profile
+   (below).
 1. **Stereo matches, verified by the neighbours.** In view k every left keypoint may pair with any
    right keypoint on the same row (``mv_stereo_dv_px``) whose disparity lies in the depth range
    (rectified pair: the epipolar line is the row). Each candidate pair triangulates to one 3D
@@ -32,6 +33,14 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
    b's point onto a's (symmetric epipolar/reprojection test; each b keeps its cheapest a). Links
    are merged nearest views first, cheapest first (union-find) under the cannot-link rule: one
    view contributes at most one detection to a track.
+   *Joint test* (``mv_link_joint``; on in the ``gt`` detector profile): the point triangulated from
+   the four rays of a and b must reproject within ``mv_link_px`` into all four images. A partly
+   hidden seed's visible centre differs between the left and the right image, so its own stereo
+   depth is off by millimetres (correct stereo matches of seeds the plain test left unlinked: 3D
+   points ~3 mm apart, median reprojection into the next view 1.1 px left / 2.7 px right); the joint
+   point shares that error between both views. Tuning panicles 95-100 with ``gt``: MAPE vs
+   countable 8.8 % -> 3.5 %. With the ``fast`` / ``fast-classic`` detectors it links ghost matches
+   too (fast-classic 19 % -> 56 %), so it is not their default.
    *Optional second pass* (``mv_relink_px`` > ``mv_link_px``; off by default): observations whose
    track still has fewer than ``min_observations`` views are linked with the wider tolerance
    ``mv_relink_px``, only between stereo matches of support >= ``mv_relink_min_support``. On the
@@ -39,10 +48,34 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
    overcount of the noisy fast-classic detector by about as much, so it is not the default.
 3. **Triangulation.** Each track is triangulated from all its rays (left and right camera of
    every view; linear least squares, the point closest to all rays); observations reprojecting
-   farther than ``mv_max_reproj_px`` are dropped from their track and it is re-triangulated.
+   farther than ``mv_max_reproj_px`` are dropped from their track and it is re-triangulated --
+   only the worst one of each track per round (``mv_drop_worst_only``, up to ``mv_reproj_rounds``):
+   one wrong observation pulls the point and used to take a whole well-seen track with it.
+3b. **Growing** (``mv_grow_px`` > 0). A track of >= ``min_observations`` views projects its point into
+   the views it lacks that have views of the track on both sides within ``mv_grow_views``
+   (``mv_grow_fill_only``: beyond the end of its arc a seed turns away and its foreshortened
+   neighbour lands where it would project). Where an unambiguous left keypoint (no other within
+   ``mv_grow_unique_px``) and a right keypoint on the same row lie within ``mv_grow_px`` it claims
+   the pair -- taking it from its current stereo match only when that match's track has fewer views
+   (a ghost match built from this seed's left keypoint and a neighbour's right one, or a fragment).
+   Tracks with more views choose first; then re-triangulation (``mv_grow_passes`` rounds). It removes
+   ghost tracks that counted a seed twice (``gt``, tuning panicles 99/100: 320 -> 204 doubles).
 4. **Count.** Tracks supported by >= ``min_observations`` views, after a 3D de-duplication that
    joins tracks closer than ``mv_dedupe`` x the median seed diameter and sharing no view
-   (fragments of one seed, e.g. seen from two arcs of views with a gap between).
+   (fragments of one seed, e.g. seen from two arcs of views with a gap between), and -- with
+   ``mv_dedupe_shared`` > 0 -- tracks closer than that many median diameters even when they share
+   views: a detector that fires more than once on one seed makes two consistent tracks through the
+   same views (on the arm-scan seeds, larger than the row-image seeds the detectors were trained on,
+   ~50-60 % of ``fast`` / ``fast-classic`` keypoints have their nearest neighbour on the same seed,
+   2.5-3.9 px away; ``gt`` 4-6 %).
+
+**Detector profiles.** ``CountConfig.detector_profiles`` holds key=value overrides per detector name
+that the pipeline and ``seedmap count`` apply on top of the count settings
+(:meth:`CountConfig.for_detector`; ``count.detector_profile=false`` turns them off): ``gt`` joint
+links at 1.5 px; ``fast`` merges keypoints closer than 3 px first and joins tracks sharing views
+within 0.8 diameters; ``fast-classic`` joins them within 1.0 diameter. Chosen on the tuning
+panicles 95-100 only (seedmap.recon.config.DETECTOR_PROFILES). A detector without a profile gets
+the plain settings.
 
 Every view contributes one 3D centre per detected seed (in the registered world frame), so a seed
 seen from ``n`` views appears as a tight cloud of ``n`` observations.
@@ -321,9 +354,9 @@ class _CannotLinkUnionFind:
             i = parent[i]
         return i
 
-    def union(self, x: int, y: int) -> bool:
+    def union(self, x: int, y: int, force: bool = False) -> bool:
         rx, ry = self.find(x), self.find(y)
-        if rx == ry or (self.vmask[rx] & self.vmask[ry]):
+        if rx == ry or (self.vmask[rx] & self.vmask[ry] and not force):
             return False  # cannot-link: one view sees a seed at most once
         self.parent[ry] = rx
         self.vmask[rx] |= self.vmask[ry]
@@ -541,11 +574,9 @@ def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw:
     neighbouring views -> (left idx, right idx, world point (m), support) per view."""
     from scipy.optimize import linear_sum_assignment
 
-    V = len(views)
-    trees = [(cKDTree(v.left), cKDTree(v.right)) if v is not None else (None, None) for v in views]
+    trees = _keypoint_trees(views)
     d_lo = calib.fx * calib.baseline / cfg.mv_max_depth
     d_hi = calib.fx * calib.baseline / cfg.mv_min_depth
-    sig = cfg.mv_support_sigma_px
     empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
     out = []
     for k, kp in enumerate(views):
@@ -561,14 +592,7 @@ def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw:
             out.append(empty)
             continue
         Xw = transform_points(poses[k], calib.triangulate(kp.left[c[:, 0]], kp.right[c[:, 1], 0]))
-        support = np.zeros(len(c))
-        for _, m in _neighbour_views(k, V, cfg.mv_verify_views, cfg.circular, both_sides=True):
-            if views[m] is None:
-                continue
-            uvl, ur = _project_world(calib, Tcw[m], Xw)
-            dl, _ = _nearest(trees[m][0], uvl, 3 * sig)
-            dr, _ = _nearest(trees[m][1], np.column_stack([ur, uvl[:, 1]]), 3 * sig)
-            support += np.exp(-0.5 * (dl / sig) ** 2) + np.exp(-0.5 * (dr / sig) ** 2)
+        support = _view_support(k, Xw, views, trees, Tcw, calib, cfg)
         ok = support >= cfg.mv_min_support
         c, Xw, support = c[ok], Xw[ok], support[ok]
         if len(c) == 0:
@@ -586,6 +610,144 @@ def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw:
         q = np.sort(q[q >= 0])
         out.append((c[q, 0], c[q, 1], Xw[q], support[q]))
     return out
+
+
+def _keypoint_trees(views: list[StereoKeypoints | None]) -> list[tuple[cKDTree | None, cKDTree | None]]:
+    """(left, right) keypoint KD-trees (px) of every view (None for skipped views)."""
+    return [(cKDTree(v.left), cKDTree(v.right)) if v is not None else (None, None) for v in views]
+
+
+def _view_support(k: int, Xw: np.ndarray, views: list[StereoKeypoints | None], trees: list, Tcw: np.ndarray,
+                  calib, cfg: CountConfig) -> np.ndarray:
+    """Support (step 1, module docstring) of world points ``Xw`` (N, 3) m seen in view ``k``: sum over
+    the left and right images of the ``mv_verify_views`` views on each side of exp(-e^2 / 2 sigma^2),
+    e = distance (px) of the projection to the nearest detection there."""
+    sig = cfg.mv_support_sigma_px
+    support = np.zeros(len(Xw))
+    for _, m in _neighbour_views(k, len(views), cfg.mv_verify_views, cfg.circular, both_sides=True):
+        if views[m] is None:
+            continue
+        uvl, ur = _project_world(calib, Tcw[m], Xw)
+        dl, _ = _nearest(trees[m][0], uvl, 3 * sig)
+        dr, _ = _nearest(trees[m][1], np.column_stack([ur, uvl[:, 1]]), 3 * sig)
+        support += np.exp(-0.5 * (dl / sig) ** 2) + np.exp(-0.5 * (dr / sig) ** 2)
+    return support
+
+
+def _triangulate_tracks(roots: np.ndarray, alive: np.ndarray, view: np.ndarray, uvL: np.ndarray, uR: np.ndarray,
+                        poses: np.ndarray, Tcw: np.ndarray, calib, by_view: dict,
+                        cfg: CountConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 3 (module docstring): triangulates every track (observations sharing a ``root``) from the
+    rays of all its left and right keypoints and drops observations reprojecting farther than
+    ``mv_max_reproj_px`` (three rounds). Dropped and dead (``~alive``) observations become singleton
+    groups. Returns (kept mask, group per observation, world point (m) per group)."""
+    n = len(view)
+    cL, dL = _rays(calib, poses, view, uvL[:, 0], uvL[:, 1], right=False)
+    cR, dR = _rays(calib, poses, view, uR, uvL[:, 1], right=True)
+    C2, D2 = np.concatenate([cL, cR]), np.concatenate([dL, dR])
+    keep = alive.copy()
+    for _ in range(cfg.mv_reproj_rounds):
+        _, comp = np.unique(np.where(keep, roots, -1 - np.arange(n)), return_inverse=True)
+        G = int(comp.max()) + 1
+        Xg = triangulate_rays(np.concatenate([comp, comp]), G, C2, D2)
+        err = np.full(n, np.inf)
+        for k, idx in by_view.items():
+            pl, pr = _project_world(calib, Tcw[k], Xg[comp[idx]])
+            err[idx] = np.maximum(np.linalg.norm(pl - uvL[idx], axis=1), np.abs(pr - uR[idx]))
+        bad = keep & ~(err <= cfg.mv_max_reproj_px)
+        if not bad.any():
+            break
+        if cfg.mv_drop_worst_only:
+            # one wrong observation pulls its track's point and makes the good ones look bad too:
+            # drop only the worst of each track per round, then re-triangulate
+            worst = np.full(G, -np.inf)
+            np.maximum.at(worst, comp[keep], np.where(np.isfinite(err[keep]), err[keep], 1e9))
+            bad &= np.where(np.isfinite(err), err, 1e9) >= worst[comp]
+        keep &= ~bad
+    _, comp = np.unique(np.where(keep, roots, -1 - np.arange(n)), return_inverse=True)
+    Xg = triangulate_rays(np.concatenate([comp, comp]), int(comp.max()) + 1, C2, D2)
+    return keep, comp, Xg
+
+
+def _grow_tracks(views: list[StereoKeypoints | None], trees: list, comp: np.ndarray, keep: np.ndarray,
+                 alive: np.ndarray, Xg: np.ndarray, view: np.ndarray, il: np.ndarray, ir: np.ndarray,
+                 Tcw: np.ndarray, calib, cfg: CountConfig):
+    """Step 3b (module docstring): every track seen from >= ``min_observations`` views projects its
+    point into the views up to ``mv_grow_views`` around its own that it lacks; where a left AND a
+    right keypoint (same row) lie within ``mv_grow_px`` of the projection it claims that pair --
+    taking it from its current stereo match only when that match belongs to a track with fewer views
+    (a ghost match built from this seed's keypoint, or a fragment of it). Tracks with more views
+    choose first, nearest first. Returns None when nothing was claimed, else the new observations
+    (view, left idx, right idx, claiming group) and the indices of the observations they replace."""
+    V = len(views)
+    live = keep & alive
+    G = int(comp.max()) + 1
+    vm = np.zeros((G, V), bool)
+    vm[comp[live], view[live]] = True
+    nv = vm.sum(axis=1)
+    grower = (nv >= cfg.min_observations) & np.all(np.isfinite(Xg), axis=1)
+    if not grower.any():
+        return None
+    lown = [np.full(len(v.left), -1, np.int64) if v is not None else None for v in views]
+    rown = [np.full(len(v.right), -1, np.int64) if v is not None else None for v in views]
+    for o in np.flatnonzero(alive).tolist():
+        lown[view[o]][il[o]] = o
+        rown[view[o]][ir[o]] = o
+    onv = np.where(live, nv[comp], 0)  # views of the track each observation is in (0 = dropped)
+    w = cfg.mv_grow_views
+    cand = []
+    for m in range(V):
+        if views[m] is None:
+            continue
+        before = np.zeros(G, bool)
+        after = np.zeros(G, bool)
+        for off in range(1, w + 1):
+            for k, side in ((m - off, before), (m + off, after)):
+                if cfg.circular:
+                    k %= V
+                if 0 <= k < V:
+                    side |= vm[:, k]
+        # gap filling only (seen on both sides of view m): beyond the end of its arc a seed turns away
+        # and its foreshortened neighbour lands where it would project
+        near = (before & after) if cfg.mv_grow_fill_only else (before | after)
+        g = np.flatnonzero(grower & near & ~vm[:, m])
+        if len(g) == 0:
+            continue
+        pc = transform_points(Tcw[m], Xg[g])
+        front = pc[:, 2] > 0
+        g, pc = g[front], pc[front]
+        pl, pr = calib.project(pc)
+        dl, i = _nearest(trees[m][0], pl, cfg.mv_grow_px)
+        dr, j = _nearest(trees[m][1], np.column_stack([pr, pl[:, 1]]), cfg.mv_grow_px)
+        hit = (i >= 0) & (j >= 0)
+        if cfg.mv_grow_unique_px > 0 and hit.any():
+            # unambiguous only: near the silhouette (grazing view) neighbouring seeds crowd together
+            # in the image and a hidden seed's projection lands on a neighbour
+            d2, _ = trees[m][0].query(pl[hit], k=2)
+            hit[np.flatnonzero(hit)[d2[:, 1] < cfg.mv_grow_unique_px]] = False
+        cand.append(np.column_stack([-nv[g[hit]], dl[hit] + dr[hit], g[hit], np.full(hit.sum(), m), i[hit], j[hit]]))
+    if not cand:
+        return None
+    C = np.concatenate(cand)
+    C = C[np.lexsort((C[:, 1], C[:, 0]))]
+    taken_l: set = set()
+    taken_r: set = set()
+    out, dead = [], []
+    for _, _, g, m, i, j in C.tolist():
+        g, m, i, j = int(g), int(m), int(i), int(j)
+        if (m, i) in taken_l or (m, j) in taken_r:
+            continue
+        oi, oj = int(lown[m][i]), int(rown[m][j])
+        if (oi >= 0 and onv[oi] >= nv[g]) or (oj >= 0 and onv[oj] >= nv[g]):
+            continue
+        taken_l.add((m, i))
+        taken_r.add((m, j))
+        dead += [o for o in (oi, oj) if o >= 0]
+        out.append((m, i, j, g))
+    if not out:
+        return None
+    o = np.array(out, np.int64)
+    return o[:, 0], o[:, 1], o[:, 2], o[:, 3], np.unique(np.array(dead, np.int64))
 
 
 def _rays(calib, poses: np.ndarray, view: np.ndarray, u: np.ndarray, v: np.ndarray,
@@ -617,11 +779,18 @@ def triangulate_rays(group: np.ndarray, n_groups: int, centres: np.ndarray, dirs
 
 def _link_edges(by_view: dict, trees: dict, X: np.ndarray, uvL: np.ndarray, uR: np.ndarray, Tcw: np.ndarray,
                 calib, V: int, max_lag: int, link_px: float, link_px_per_lag: float,
-                circular: bool) -> np.ndarray:
+                circular: bool, rays: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+                search: float = 2.0) -> np.ndarray:
     """Step 2 (module docstring): symmetric reprojection links between the stereo matches of views
     up to ``max_lag`` apart, tolerance ``link_px`` (+ ``link_px_per_lag`` per view of lag beyond the
     first) px; each match of the later view keeps its cheapest partner. Rows (lag, cost px, a, b),
-    nearest views first, cheapest first."""
+    nearest views first, cheapest first.
+
+    With ``rays`` (left centres, left directions, right centres, right directions of every match)
+    the test is joint instead: the nearest match b within ``search`` x the tolerance of a's
+    projection is linked when the point triangulated from the four rays of a and b reprojects within
+    the tolerance into all four images -- the depth error of one biased stereo match (a partly
+    hidden seed's visible centre differs between left and right) is then shared by both views."""
     edges = []
     for k, A in by_view.items():
         for lag, m in _neighbour_views(k, V, max_lag, circular, both_sides=False):
@@ -629,16 +798,31 @@ def _link_edges(by_view: dict, trees: dict, X: np.ndarray, uvL: np.ndarray, uR: 
                 continue
             lnk = link_px + link_px_per_lag * (lag - 1)  # relative pose errors grow with lag
             pl, pr = _project_world(calib, Tcw[m], X[A])
-            dl, j = _nearest(trees[m], pl, lnk)
+            dl, j = _nearest(trees[m], pl, lnk if rays is None else search * lnk)
             hit = np.flatnonzero(j >= 0)
             a, b = A[hit], by_view[m][j[hit]]
-            e_r = np.abs(pr[hit] - uR[b])
-            ql, qr = _project_world(calib, Tcw[k], X[b])
-            e_bl = np.linalg.norm(ql - uvL[a], axis=1)
-            e_br = np.abs(qr - uR[a])
-            ok = (e_r <= lnk) & (e_bl <= lnk) & (e_br <= lnk)
+            if rays is None:
+                e_r = np.abs(pr[hit] - uR[b])
+                ql, qr = _project_world(calib, Tcw[k], X[b])
+                e_bl = np.linalg.norm(ql - uvL[a], axis=1)
+                e_br = np.abs(qr - uR[a])
+                ok = (e_r <= lnk) & (e_bl <= lnk) & (e_br <= lnk)
+                cost = (dl[hit][ok] + e_r[ok] + e_bl[ok] + e_br[ok]) / 4.0
+            else:
+                cl, dl_, cr, dr_ = rays
+                P = len(a)
+                grp = np.tile(np.arange(P), 4)
+                Xj = triangulate_rays(grp, P, np.concatenate([cl[a], cr[a], cl[b], cr[b]]),
+                                      np.concatenate([dl_[a], dr_[a], dl_[b], dr_[b]]))
+                e = np.zeros((P, 4))
+                for col, (idx, kk) in enumerate(((a, k), (b, m))):
+                    ql, qr = _project_world(calib, Tcw[kk], Xj)
+                    e[:, 2 * col] = np.linalg.norm(ql - uvL[idx], axis=1)
+                    e[:, 2 * col + 1] = np.abs(qr - uR[idx])
+                e[~np.isfinite(e)] = np.inf
+                ok = np.all(e <= lnk, axis=1)
+                cost = e[ok].mean(axis=1)
             a, b = a[ok], b[ok]
-            cost = (dl[hit][ok] + e_r[ok] + e_bl[ok] + e_br[ok]) / 4.0
             o = np.lexsort((cost, b))  # each b keeps its cheapest a
             first = np.ones(len(o), bool)
             first[1:] = b[o][1:] != b[o][:-1]
@@ -702,8 +886,12 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     # step 2: symmetric reprojection links between views up to max_lag apart
     by_view = {int(k): np.flatnonzero(view == k) for k in np.unique(view)}
     trees = {k: cKDTree(uvL[i]) for k, i in by_view.items()}
+    rays = None
+    if cfg.mv_link_joint:
+        rays = (*_rays(calib, poses, view, uvL[:, 0], uvL[:, 1], right=False),
+                *_rays(calib, poses, view, uR, uvL[:, 1], right=True))
     E = _link_edges(by_view, trees, X, uvL, uR, Tcw, calib, V, cfg.max_lag, cfg.mv_link_px,
-                    cfg.mv_link_px_per_lag, cfg.circular)
+                    cfg.mv_link_px_per_lag, cfg.circular, rays, cfg.mv_link_search)
     uf = _CannotLinkUnionFind(view)
     for a, b in E[:, 2:].astype(np.int64).tolist():
         uf.union(a, b)
@@ -722,31 +910,53 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
                 uf.union(a, b)
     roots = np.array([uf.find(i) for i in range(n)])
     # step 3: triangulate every track from the rays of all its left and right keypoints
+    alive = np.ones(n, bool)
+    keep, comp, Xg = _triangulate_tracks(roots, alive, view, uvL, uR, poses, Tcw, calib, by_view, cfg)
+    trees_kp = _keypoint_trees(views)
+    if cfg.mv_grow_px > 0:
+        # step 3b: tracks claim the detections their point projects onto in the views around them
+        for _ in range(cfg.mv_grow_passes):
+            grown = _grow_tracks(views, trees_kp, comp, keep, alive, Xg, view, il, ir, Tcw, calib, cfg)
+            if grown is None:
+                break
+            new_view, new_il, new_ir, new_group, dead = grown
+            alive[dead] = False
+            o = np.argsort(new_view, kind="stable")  # view order (the supports below are computed per view)
+            new_view, new_il, new_ir, new_group = new_view[o], new_il[o], new_ir[o], new_group[o]
+            m = len(new_view)
+            Xn = np.zeros((m, 3))
+            for k in np.unique(new_view):
+                sel = new_view == k
+                Xn[sel] = transform_points(poses[k], calib.triangulate(views[k].left[new_il[sel]],
+                                                                       views[k].right[new_ir[sel], 0]))
+            # a grown observation joins the track of its claiming group (root = any member of it)
+            member = np.full(int(comp.max()) + 1, -1, np.int64)
+            member[comp[keep & alive]] = np.flatnonzero(keep & alive)
+            new_root = roots[member[new_group]]
+            view = np.concatenate([view, new_view])
+            il = np.concatenate([il, new_il])
+            ir = np.concatenate([ir, new_ir])
+            X = np.concatenate([X, Xn])
+            support = np.concatenate([support] + [_view_support(k, Xn[new_view == k], views, trees_kp, Tcw, calib, cfg)
+                                                  for k in np.unique(new_view)])
+            roots = np.concatenate([roots, new_root])
+            alive = np.concatenate([alive, np.ones(m, bool)])
+            uvL = np.concatenate([uvL, np.array([views[k].left[i] for k, i in zip(new_view, new_il)]).reshape(-1, 2)])
+            uR = np.concatenate([uR, np.array([views[k].right[j, 0] for k, j in zip(new_view, new_ir)])])
+            size = np.concatenate([size, np.array([views[k].left_size[i] for k, i in zip(new_view, new_il)])])
+            n = len(view)
+            by_view = {int(k): np.flatnonzero(view == k) for k in np.unique(view)}
+            keep, comp, Xg = _triangulate_tracks(roots, alive, view, uvL, uR, poses, Tcw, calib, by_view, cfg)
+    G = int(comp.max()) + 1
     cL, dL = _rays(calib, poses, view, uvL[:, 0], uvL[:, 1], right=False)
     cR, dR = _rays(calib, poses, view, uR, uvL[:, 1], right=True)
     C2, D2 = np.concatenate([cL, cR]), np.concatenate([dL, dR])
-    keep = np.ones(n, bool)
-    for _ in range(3):
-        _, comp = np.unique(np.where(keep, roots, -1 - np.arange(n)), return_inverse=True)
-        G = int(comp.max()) + 1
-        Xg = triangulate_rays(np.concatenate([comp, comp]), G, C2, D2)
-        err = np.full(n, np.inf)
-        for k, idx in by_view.items():
-            pl, pr = _project_world(calib, Tcw[k], Xg[comp[idx]])
-            err[idx] = np.maximum(np.linalg.norm(pl - uvL[idx], axis=1), np.abs(pr - uR[idx]))
-        bad = keep & ~(err <= cfg.mv_max_reproj_px)
-        if not bad.any():
-            break
-        keep &= ~bad
-    _, comp = np.unique(np.where(keep, roots, -1 - np.arange(n)), return_inverse=True)
-    G = int(comp.max()) + 1
-    Xg = triangulate_rays(np.concatenate([comp, comp]), G, C2, D2)
     # per-observation depth -> seed diameter (m)
     z = np.einsum("nj,nj->n", Tcw[view][:, 2, :3], X) + Tcw[view][:, 2, 3]
     diam = size * z / calib.fx
     # step 4: 3D de-duplication of counted tracks (fragments of one seed share no view)
     vm = [0] * G
-    for k, g in zip(view.tolist(), comp.tolist()):
+    for k, g in zip(view[alive].tolist(), comp[alive].tolist()):
         vm[g] |= 1 << k
     nv = np.array([bin(m).count("1") for m in vm])
     counted = np.flatnonzero((nv >= cfg.min_observations) & np.all(np.isfinite(Xg), axis=1))
@@ -759,17 +969,26 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
             dd = np.linalg.norm(Xg[counted[pairs[:, 0]]] - Xg[counted[pairs[:, 1]]], axis=1)
             for p, q in counted[pairs[np.argsort(dd, kind="stable")]].tolist():
                 uf2.union(p, q)
+    r_dup = cfg.mv_dedupe_shared * float(np.median(diam))
+    if r_dup > 0 and len(counted) > 1:
+        # step 4b: tracks closer than two seeds can be are one seed even when they share views
+        # (a detector firing twice on one seed makes two consistent tracks through the same views)
+        pairs = cKDTree(Xg[counted]).query_pairs(r_dup, output_type="ndarray")
+        if len(pairs):
+            dd = np.linalg.norm(Xg[counted[pairs[:, 0]]] - Xg[counted[pairs[:, 1]]], axis=1)
+            for p, q in counted[pairs[np.argsort(dd, kind="stable")]].tolist():
+                uf2.union(p, q, force=True)
     _, track = np.unique(np.array([uf2.find(g) for g in range(G)])[comp], return_inverse=True)
     T = int(track.max()) + 1
     Xt = triangulate_rays(np.concatenate([track, track]), T, C2, D2)
-    key = np.unique(track * V + view)
+    key = np.unique(track[alive] * V + view[alive])
     tv = np.bincount(key // V, minlength=T)
     ok_t = (tv >= cfg.min_observations) & np.all(np.isfinite(Xt), axis=1)
     new_index = np.full(T, -1, np.int64)
     new_index[ok_t] = np.arange(ok_t.sum())
     obs_seed = new_index[track]
     assignment = np.full(offset[-1], -1, np.int64)
-    assignment[offset[view] + il] = obs_seed
+    assignment[offset[view[alive]] + il[alive]] = obs_seed[alive]
     cnt_obs = np.bincount(track, minlength=T)
     d2 = np.sum((X - Xt[track]) ** 2, axis=1)
     spread = np.sqrt(np.bincount(track, weights=d2, minlength=T) / np.maximum(cnt_obs, 1))
@@ -778,5 +997,5 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     dmed = np.array([np.median(diam[order[bounds[t]:bounds[t + 1]]]) for t in np.flatnonzero(ok_t)])
     res = SeedCount(Xt[ok_t], dmed.reshape(-1), tv[ok_t], assignment, spread[ok_t])
     if detail:
-        return res, MultiViewDetail(view, il, ir, support, np.where(keep, track, -1), Xt, tv)
+        return res, MultiViewDetail(view, il, ir, support, np.where(keep & alive, track, -1), Xt, tv)
     return res

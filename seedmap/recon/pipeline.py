@@ -249,7 +249,7 @@ def multiview_count_observations(kps: list[StereoKeypoints | None], poses: np.nd
     """Count method ``multiview`` on the views' 2D detections; the returned ``assignment`` is given
     per stereo seed observation (``obs_view``, ``obs_det`` = view and left detection index), like the
     3D methods' (it labels the merged cloud and observations.csv)."""
-    cnt = count_multiview(kps, poses, calib, cfg.count)
+    cnt = count_multiview(kps, poses, calib, cfg.count.for_detector(cfg.detector))
     offset = np.concatenate([[0], np.cumsum([len(k.left) if k is not None else 0 for k in kps])]).astype(np.int64)
     obs_view = np.asarray(obs_view, np.int64)
     obs_det = np.asarray(obs_det, np.int64)
@@ -528,7 +528,8 @@ def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
         if not c.is_file():
             raise InputError("calib.yaml not found (count method 'multiview' needs the calibration)", c)
         calib = read_calib_yaml(c)
-        return count_multiview(read_detections(results, len(poses)), poses, calib, cfg.count)
+        return count_multiview(read_detections(results, len(poses)), poses, calib,
+                               cfg.count.for_detector(cfg.detector))
     if cfg.count.method == "rays":
         from seedmap.io.trajectory import read_tum
 
