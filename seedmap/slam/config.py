@@ -90,7 +90,8 @@ class SlamAssociationConfig(SemanticConfig):
     seed-13 range: 0.944/0.692 -> 0.981/0.824), but it is *not* the default because SLAM on the 1 m
     range gets worse with it (gt: ATE 7.3 -> 7.5 mm, first-pose-aligned 22 -> 34 mm; fast:
     GT-validated MDM 100 -> 76 %, ATE 7.4 -> 7.7 mm) although the 5 m paper2 range gets better
-    (gt: ATE 0.42 -> 0.31 % of the distance), and the prior costs ~220 ms CPU per frame (SGBM).
+    (ATE 0.42 -> 0.31 % of the distance with gt, 0.39 -> 0.29 % with fast), and the prior costs
+    ~220 ms CPU per frame (SGBM).
     Not explained: neither dropping pairs whose disparity disagrees with their neighbours'
     (``prior_max_dev_px``) nor re-centring SGBM on the keypoints (``prior_debias``) removed the
     1 m range's start-of-range drift with the fast detector.
