@@ -1104,7 +1104,8 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     offs = (np.arange(n_ss) + 0.5) / n_ss - 0.5
     grid_off = [(float(du), float(dv)) for dv in offs for du in offs]
     S = len(grid_off)
-    er, ec = np.divmod(idx, W)
+    idx = idx.astype(np.int32)  # int32 pixel indices: the (4, M) candidate tables are the AA's peak memory
+    er, ec = np.divmod(idx, np.int32(W))
     k0 = np.take(key, idx)
     nbf: dict[tuple[int, int], np.ndarray] = {(0, 0): idx}
     same: dict[tuple[int, int], np.ndarray] = {}
@@ -1116,7 +1117,7 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     for du, dv in grid_off:
         for nb in quadrant(du, dv):
             if nb not in nbf:
-                f = np.clip(er + nb[0], 0, H - 1) * W + np.clip(ec + nb[1], 0, W - 1)
+                f = np.clip(er + np.int32(nb[0]), 0, H - 1) * np.int32(W) + np.clip(ec + np.int32(nb[1]), 0, W - 1)
                 nbf[nb] = f
                 same[nb] = np.take(key, f) == k0
     same[(0, 0)] = np.ones(len(idx), bool)
@@ -1139,7 +1140,7 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     if M == 0:
         return
     ar = np.arange(M)
-    ck, ct, cs = np.take(key, cf_a), np.take(tt, cf_a), np.take(h.seed, cf_a)
+    ck, ct, cs = np.take(key, cf_a), np.take(tt, cf_a), np.take(h.seed.astype(np.int32), cf_a)
     seedc = cs >= 0
     # each distinct seed among a sub-sample's candidates is tested once (neighbours often see the
     # pixel's own seed): a candidate repeating an earlier one copies its answer
