@@ -86,6 +86,8 @@ def test_two_tiny_ranges_all_columns_and_resume(tmp_path):
     # resume: finished runs are read back, not recomputed
     stamp = {p: p.stat().st_mtime_ns for p in out.glob("runs/*/*/*/metrics.json")}
     assert len(stamp) == 6
+    # each run keeps its report.md; the per-run report.html is opt-in (cfg.html_reports)
+    assert all((p.parent / "report.md").is_file() and not (p.parent / "report.html").exists() for p in stamp)
     recs2 = run_benchmark(paper_ranges(cfg), out, cfg, progress=False)
     assert {p: p.stat().st_mtime_ns for p in out.glob("runs/*/*/*/metrics.json")} == stamp
     assert [(r.method, r.mdm_m) for r in recs2] == [(r.method, r.mdm_m) for r in recs]

@@ -89,6 +89,9 @@ class BenchmarkConfig(ConfigModel):
         default_factory=lambda: {k: dict(v) for k, v in TUNED.items()},
         description="per-kind overrides of `features` (default: the values tuned on the training range)")
     workers: int = Field(2, ge=1, le=64)
+    html_reports: bool = Field(
+        False, description="also write each run's report.html (about 2.7 s CPU per run on a paper range; "
+                           "report.md, topview.png and the benchmark's own plots are always written)")
 
     def features_for(self, kind: str) -> FeatureMatcherConfig:
         """The descriptor-baseline parameters used for ``kind`` (base + its tuned overrides)."""
@@ -299,7 +302,7 @@ def simulate_job(preset: str, seed: int, overrides: Sequence[str], out: str) -> 
 
 
 def slam_job(dataset: str, out: str, matcher: str, detector: str | None, slam_overrides: Sequence[str],
-             features: dict, log: str) -> tuple[str, str]:
+             features: dict, log: str, html_report: bool = False) -> tuple[str, str]:
     """Run one method on one dataset through :func:`run_slam`; ``(status, note)``, never raises."""
     try:
         from seedmap.slam.pipeline import run_slam
@@ -307,7 +310,7 @@ def slam_job(dataset: str, out: str, matcher: str, detector: str | None, slam_ov
         config = _slam_config(slam_overrides, features if matcher in FEATURE_KINDS else None)
         out_p = Path(out)
         run_slam(dataset, out_p, matcher=matcher, detector=detector or "gt", config=config,
-                 overwrite=out_p.exists(), progress=False)
+                 overwrite=out_p.exists(), progress=False, html_report=html_report)
         return "ok", ""
     except SeedmapError as e:
         msg = str(e)
@@ -497,7 +500,8 @@ def run_benchmark(
         log = out / "logs" / f"{spec.scenario}-{spec.name}-{_safe(m.name)}.log"
         feats = (cfg.features_for(m.matcher).model_dump(mode="json", exclude={"gates"})
                  if m.matcher in FEATURE_KINDS else {})
-        return (str(spec.dataset), str(rd), m.matcher, m.detector, list(cfg.slam_overrides), feats, str(log))
+        return (str(spec.dataset), str(rd), m.matcher, m.detector, list(cfg.slam_overrides), feats, str(log),
+                cfg.html_reports)
 
     bar = _Progress(progress, n_total)
     try:
@@ -1035,7 +1039,8 @@ def tune_baselines(
                 continue
             feats = FeatureMatcherConfig.model_validate({**cfg.features.model_dump(), **ov})
             jobs.append((str(dataset), str(rd), kind, None, list(cfg.slam_overrides),
-                         feats.model_dump(mode="json", exclude={"gates"}), str(out / "logs" / f"{rd.name}.log")))
+                         feats.model_dump(mode="json", exclude={"gates"}), str(out / "logs" / f"{rd.name}.log"),
+                         cfg.html_reports))
             metas.append((kind, ov, rd, m))
         for (kind, ov, rd, m), (status, note) in zip(metas, _run_many(jobs, cfg.workers, progress, tag),
                                                      strict=True):

@@ -67,10 +67,12 @@ def run_slam(
     overwrite: bool = False,
     progress: bool = True,
     rerun: Path | None = None,
+    html_report: bool = True,
 ) -> SlamResult:
     """Run the SLAM pipeline on ``dataset`` and write the results into ``out`` (None: no files).
 
-    ``rerun``: also record the run (images, matches, poses, growing seed map) into this ``.rrd`` file."""
+    ``rerun``: also record the run (images, matches, poses, growing seed map) into this ``.rrd`` file.
+    ``html_report``: also write ``report.html`` (the benchmark skips it: ~2.7 s CPU per run)."""
     from seedmap.associate import make_matcher
     from seedmap.io.atomic import check_output_parent
     from seedmap.slam.core import SemanticSlam
@@ -145,9 +147,10 @@ def run_slam(
         with atomic_output_dir(out, overwrite=overwrite) as tmp:
             dump_config(cfg, tmp / "config.yaml")
             write_outputs(tmp, result, online, gt, lm, rows, cfg, dataset)
-            from seedmap.viz.run_hooks import slam_html_report
+            if html_report:
+                from seedmap.viz.run_hooks import slam_html_report
 
-            slam_html_report(tmp, result, gt, lm, rows, timings, dataset)
+                slam_html_report(tmp, result, gt, lm, rows, timings, dataset)
     return result
 
 
