@@ -804,60 +804,75 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     if m == 0:
         z = np.zeros((3, 0), np.float32)
         return _Shading(live, z, np.zeros(0, np.float32), z, pending)
-    t = h.t[live]
+    # the rays grouped by surface class (a stable counting sort): each class is a slice, so the
+    # per-class work reads and writes contiguous runs instead of scattering through index arrays
+    cls = np.take(h.cls, live)
+    order = np.argsort(cls, kind="stable")
+    live = np.take(live, order)
+    cls = np.take(cls, order)
+    start = np.searchsorted(cls, np.arange(CLS_RACHIS + 2))
+
+    def span(c0: int, c1: int) -> slice:
+        return slice(int(start[c0]), int(start[c1 + 1]))
+
+    t = np.take(h.t, live)
     dl = np.ascontiguousarray(_take(d, live).T)  # (3, m)
     p = dl * t
-    p += o[0][:, None] if len(o) == 1 else o[live].T
-    cls = h.cls[live]
-    prim = h.prim[live]
+    p += o[0][:, None] if len(o) == 1 else _take(o, live).T
     albedo = np.empty((3, m), np.float32)
     nrm = np.empty((3, m), np.float32)
     ks = np.empty(m, np.float32)
     shin = np.full(m, SHIN_DEFAULT, np.float32)
     ao = np.ones(m, np.float32)
     # soil: flat, textured
-    soil = np.nonzero(cls == CLS_SOIL)[0]
-    if len(soil):
+    soil = span(CLS_SOIL, CLS_SOIL)
+    if soil.stop > soil.start:
         nrm[:, soil] = np.array([[0.0], [0.0], [1.0]], np.float32)
         albedo[:, soil] = _soil_albedo(world, p[0, soil], p[1, soil])
         ks[soil] = KS_SOIL
     # stalks and leaves: interpolated vertex normals, per-triangle albedo, leaf pattern
-    em = np.nonzero((cls == CLS_STALK) | (cls == CLS_LEAF))[0]
-    if len(em):
-        tab = _rows(fs.tri_table, prim[em])  # (18, e): vertex normals (9), uv (6), albedo (3)
-        bary = h.bary[live[em]]
+    em = span(CLS_STALK, CLS_LEAF)
+    if em.stop > em.start:
+        le = live[em]
+        tab = _rows(fs.tri_table, np.take(h.prim, le))  # (18, e): vertex normals (9), uv (6), albedo (3)
+        bary = _take(h.bary, le)
         b1 = np.ascontiguousarray(bary[:, 0])
         b2 = np.ascontiguousarray(bary[:, 1])
         b0 = 1 - b1 - b2
         for c in range(3):
             nrm[c, em] = tab[c] * b0 + tab[3 + c] * b1 + tab[6 + c] * b2
-        alb = tab[15:18]
-        leaf = cls[em] == CLS_LEAF
-        ks[em] = np.where(leaf, np.float32(KS_LEAF), np.float32(KS_STALK))
-        li = np.nonzero(leaf)[0]
-        if len(li):
+        albedo[:, em] = tab[15:18]
+        st_ = span(CLS_STALK, CLS_STALK)
+        ks[st_] = KS_STALK
+        lf = span(CLS_LEAF, CLS_LEAF)
+        if lf.stop > lf.start:
+            ks[lf] = KS_LEAF
+            shin[lf] = SHIN_LEAF
+            li = slice(lf.start - em.start, lf.stop - em.start)  # the leaves within the env slice
             s = tab[9, li] * b0[li] + tab[11, li] * b1[li] + tab[13, li] * b2[li]
             w = tab[10, li] * b0[li] + tab[12, li] * b1[li] + tab[14, li] * b2[li]
             wi = np.clip(w * np.float32(_LEAF_LUT_N - 1) + np.float32(0.5), 0, _LEAF_LUT_N - 1).astype(np.int32)
             tipdry = np.clip((s - np.float32(0.75)) * np.float32(4.0), 0, 1)
             tipdry *= np.float32(0.25)
             tipdry += np.float32(1.0)
-            alb[:, li] *= _LEAF_LUT[wi] * tipdry
-            shin[em[li]] = SHIN_LEAF
-        albedo[:, em] = alb
+            albedo[:, lf] *= np.take(_LEAF_LUT, wi) * tipdry
     # rachis: flat normals from the panicle mesh, rotated by the wind
-    rm = np.nonzero(cls == CLS_RACHIS)[0]
-    if len(rm):
-        objs = h.obj[live[rm]]
+    rm = span(CLS_RACHIS, CLS_RACHIS)
+    if rm.stop > rm.start:
+        lr = live[rm]
+        objs = np.take(h.obj, lr)
+        prim = np.take(h.prim, lr)
+        nr = nrm[:, rm]
         for k in np.unique(objs):
-            sel = rm[objs == k]
-            nrm[:, sel] = _xf(fs.bvh[int(k)].face_normals[prim[sel]], fs.D32[k, :3, :3]).T
+            sel = objs == k
+            nr[:, sel] = _xf(fs.bvh[int(k)].face_normals[prim[sel]], fs.D32[k, :3, :3]).T
+        nrm[:, rm] = nr
         albedo[:, rm] = np.array(RACHIS_ALBEDO, np.float32)[:, None]
         ks[rm] = KS_RACHIS
     # seeds: analytic ellipsoid normal (smooth shading on a low-poly mesh), glume at the base
-    sm = np.nonzero(cls == CLS_SEED)[0]
-    if len(sm):
-        sid = h.seed[live[sm]]
+    sm = span(CLS_SEED, CLS_SEED)
+    if sm.stop > sm.start:
+        sid = np.take(h.seed, live[sm])
         tab = _rows(fs.seed_tab, sid)
         dyn, st = tab[:12], tab[12:]  # axes now (9, row-major), centre now (3); see _seed_static
         dp = p[:, sm] - dyn[9:12]
@@ -875,8 +890,9 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     _normalize3(nrm)
     nrm *= np.where(_dot3(nrm, dl) > 0, np.float32(-1), np.float32(1))
     # flash: a random point on a small disc per sample (soft shadows)
-    rr = np.sqrt(rng.random(m, np.float32)) * np.float32(ic.flash_radius)
-    th = rng.random(m, np.float32) * np.float32(2 * np.pi)
+    # (drawn in pixel order and carried along with the class sort: the samples do not depend on it)
+    rr = np.sqrt(np.take(rng.random(m, np.float32), order)) * np.float32(ic.flash_radius)
+    th = np.take(rng.random(m, np.float32), order) * np.float32(2 * np.pi)
     ca, sa = np.cos(th) * rr, np.sin(th) * rr
     lp = np.empty((3, m), np.float32)
     for c in range(3):
