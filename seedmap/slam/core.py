@@ -340,31 +340,46 @@ class SemanticSlam:
     def landmarks(self, values: gtsam.Values | None = None) -> Landmarks:
         """The seed map with positions from ``values`` (default: current estimate): the graph's
         landmarks, plus every track of >= ``min_observations`` frames that the per-frame budget
-        (``backend.max_new_landmarks``) kept out of the graph, placed at the median of its stereo
-        points transformed with the optimised poses."""
+        (``backend.max_new_landmarks``) kept out of the graph, placed at the mean of its stereo
+        points transformed with the optimised poses (vectorised over all such observations)."""
         values = values if values is not None else self._current_values()
+        frames = np.asarray([k for k in self.frames if values.exists(X(k))], np.int64)
+        poses = np.asarray([values.atPose3(X(int(k))).matrix() for k in frames]).reshape(-1, 4, 4)
+        have = set(frames.tolist())
+        min_obs = self.cfg.backend.min_observations
         ids, xyz, nobs, sids, ing = [], [], [], [], []
-        cal = self.calib
+        out_row: list[int] = []
+        out_obs: list[tuple] = []
         for tid, tr in self.tracks.items():
             if tr.admitted:
                 if not values.exists(L(tid)):
                     continue
                 p = np.asarray(values.atPoint3(L(tid)))
             else:
-                if len(tr.obs) < self.cfg.backend.min_observations:
+                o = [ob for ob in tr.obs if ob[0] in have]
+                if len(o) < min_obs:
                     continue
-                o = np.asarray([ob for ob in tr.obs if values.exists(X(ob[0]))], float)
-                if len(o) < self.cfg.backend.min_observations:
-                    continue
-                z = cal.fx * cal.baseline / np.maximum(o[:, 1] - o[:, 2], 1e-9)
-                pc = np.c_[(o[:, 1] - cal.cx) * z / cal.fx, (o[:, 3] - cal.cy) * z / cal.fy, z]
-                pw = [values.atPose3(X(int(k))).transformFrom(pc[j]) for j, k in enumerate(o[:, 0])]
-                p = np.median(np.asarray(pw, float).reshape(-1, 3), axis=0)
+                out_row += [len(ids)] * len(o)
+                out_obs += o
+                p = np.full(3, np.nan)
             ids.append(tid)
             xyz.append(p)
             nobs.append(len(tr.obs))
             known = [s for s in tr.seed_ids if s >= 0]
             sids.append(Counter(known).most_common(1)[0][0] if known else -1)
             ing.append(tr.admitted)
-        return Landmarks(np.asarray(ids, np.int64), np.asarray(xyz, float).reshape(-1, 3),
-                         np.asarray(nobs, np.int64), np.asarray(sids, np.int64), np.asarray(ing, bool))
+        xyz_a = np.asarray(xyz, float).reshape(-1, 3)
+        if out_obs:
+            cal = self.calib
+            o = np.asarray(out_obs, float)
+            row = np.asarray(out_row, np.int64)
+            z = cal.fx * cal.baseline / np.maximum(o[:, 1] - o[:, 2], 1e-9)
+            pc = np.c_[(o[:, 1] - cal.cx) * z / cal.fx, (o[:, 3] - cal.cy) * z / cal.fy, z]
+            T = poses[np.searchsorted(frames, o[:, 0].astype(np.int64))]
+            pw = np.einsum("mij,mj->mi", T[:, :3, :3], pc) + T[:, :3, 3]
+            cnt = np.bincount(row, minlength=len(ids))
+            sel = cnt > 0
+            for d in range(3):
+                xyz_a[sel, d] = np.bincount(row, pw[:, d], len(ids))[sel] / cnt[sel]
+        return Landmarks(np.asarray(ids, np.int64), xyz_a, np.asarray(nobs, np.int64), np.asarray(sids, np.int64),
+                         np.asarray(ing, bool))
