@@ -13,11 +13,15 @@ per panicle in ``cache/pSEED_kps_HASH.npz``, HASH over the detector config and w
 and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench/DETECTOR/``.
 ``--count-set key=value ...`` overrides the multiview CountConfig (e.g. the optional second linking
 pass ``mv_relink_px=3 mv_relink_min_support=2.5``); the summary records them (``multiview_count_set``).
-The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left out of the means).
+The multiview count applies the detector's CountConfig profile (``CountConfig.for_detector``, as the
+pipeline does). The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left
+out of the means). Panicles 95-100 are the counting tuning set, 101-110 the held-out set, 111-115 fresh
+panicles first evaluated with the frozen session-4 counter (``--eval 100 111 112 113 114 115``).
 Copies of the summaries of the last reported runs: ``benchmarks/results/bench_recon_eval_{gt,fast,fast-classic}.json``
 (``fast``: a full ``--modes seeds`` run with the CNN ``fast`` detector; ``fast-classic``: a full run with the
 classical fast detector); ``..._{gt,fast,fast-classic}_{surface5,merge3,merge3_surface5}.json``: ``--recount`` with
-``--count-set mv_surface_tol=0.005`` / ``mv_merge_px=3`` / both (``multiview`` only differs).
+``--count-set mv_surface_tol=0.005`` / ``mv_merge_px=3`` / both (``multiview`` only differs; session 3);
+``..._{gt,fast,fast-classic}_fresh.json``: the fresh panicles 111-115 (session 4).
 """
 
 from __future__ import annotations

@@ -160,7 +160,7 @@ def test_seedmap_count_recounts_multiview_from_a_results_folder(tmp_path):
     back = read_detections(tmp_path, VIEWS)
     assert back[3] is None and np.allclose(back[0].left, views[0].left, atol=1e-3)
     cfg = ReconConfig()
-    direct = count_multiview(views, poses, CALIB, cfg.count).count
+    direct = count_multiview(views, poses, CALIB, cfg.count.for_detector(cfg.detector)).count  # as the pipeline
     assert abs(recount(tmp_path, cfg).count - direct) <= 2  # csv rounding of the keypoints (6 digits)
     (tmp_path / "detections.csv").unlink()
     with pytest.raises(InputError, match="detections.csv"):
