@@ -99,8 +99,9 @@ def _o3d_threads() -> int:
 
 
 def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """``a[idx]`` along the first axis (``np.take``: 2-3x faster than fancy indexing on (N, k) arrays)."""
-    return np.take(a, idx, axis=0)
+    """``a[idx]`` along the first axis for valid ``idx`` (``np.take``: 2-3x faster than fancy indexing on
+    (N, k) arrays; ``mode="clip"`` skips the bounds check, up to 3x faster again on wide rows)."""
+    return np.take(a, idx, axis=0, mode="clip")
 
 
 def _rays_tensor(o: np.ndarray, d: np.ndarray):
@@ -758,7 +759,7 @@ def _seed_static(world: World) -> np.ndarray:
 
 def _rows(table: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """``table[idx]`` as a (K, n) struct-of-arrays view (one contiguous row of ``table`` per item)."""
-    return np.take(table, idx, axis=0).T
+    return np.take(table, idx, axis=0, mode="clip").T
 
 
 @dataclass
@@ -1346,7 +1347,7 @@ def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random
     img += noise
     img *= np.float32(4095.0 / ic.full_well)
     np.clip(img, 0, 4095, out=img)
-    out = np.take(_GAMMA_LUT, img.astype(np.int16))
+    out = np.take(_GAMMA_LUT, img.astype(np.intp), mode="clip")
     if ic.jpeg_quality is not None:
         ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(ic.jpeg_quality)])
         if ok:
