@@ -210,6 +210,19 @@ def _classic_factory(dataset=None, weights=None, config=None) -> FastDetector:
     return FastDetector(config.fast if config is not None else None)
 
 
+def fast_alias(config=None) -> str:
+    """Which registered detector ``fast`` is with this config: ``fast-cnn`` or ``fast-classic``
+    (so callers that run every detector, like ``seedmap benchmark``, do not run one twice)."""
+    fc = config.fast if config is not None else FastConfig()
+    if fc.use_cnn:
+        from seedmap.detect.cnn import default_cnn_path
+
+        cc = config.cnn if config is not None else None
+        if (cc is not None and cc.weights) or default_cnn_path().is_file():
+            return "fast-cnn"
+    return "fast-classic"
+
+
 def _factory(dataset=None, weights=None, config=None) -> Detector:
     """``fast``: the small CNN (seedmap.detect.cnn) when ``fast.use_cnn`` and its weights exist, else classical."""
     fc = config.fast if config is not None else FastConfig()
