@@ -962,22 +962,18 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     counted = np.flatnonzero((nv >= cfg.min_observations) & np.all(np.isfinite(Xg), axis=1))
     uf2 = _CannotLinkUnionFind(np.zeros(G, np.int64))
     uf2.vmask = vm
-    radius = cfg.mv_dedupe * float(np.median(diam))
-    if radius > 0 and len(counted) > 1:
+    med_diam = float(np.median(diam))
+    # join close tracks, nearest pairs first: first those that share no view (mv_dedupe), then
+    # (step 4b) those closer than two seeds can be even when they share views — a detector firing
+    # twice on one seed makes two consistent tracks through the same views (mv_dedupe_shared)
+    for radius, force in ((cfg.mv_dedupe * med_diam, False), (cfg.mv_dedupe_shared * med_diam, True)):
+        if radius <= 0 or len(counted) < 2:
+            continue
         pairs = cKDTree(Xg[counted]).query_pairs(radius, output_type="ndarray")
         if len(pairs):
             dd = np.linalg.norm(Xg[counted[pairs[:, 0]]] - Xg[counted[pairs[:, 1]]], axis=1)
             for p, q in counted[pairs[np.argsort(dd, kind="stable")]].tolist():
-                uf2.union(p, q)
-    r_dup = cfg.mv_dedupe_shared * float(np.median(diam))
-    if r_dup > 0 and len(counted) > 1:
-        # step 4b: tracks closer than two seeds can be are one seed even when they share views
-        # (a detector firing twice on one seed makes two consistent tracks through the same views)
-        pairs = cKDTree(Xg[counted]).query_pairs(r_dup, output_type="ndarray")
-        if len(pairs):
-            dd = np.linalg.norm(Xg[counted[pairs[:, 0]]] - Xg[counted[pairs[:, 1]]], axis=1)
-            for p, q in counted[pairs[np.argsort(dd, kind="stable")]].tolist():
-                uf2.union(p, q, force=True)
+                uf2.union(p, q, force=force)
     _, track = np.unique(np.array([uf2.find(g) for g in range(G)])[comp], return_inverse=True)
     T = int(track.max()) + 1
     Xt = triangulate_rays(np.concatenate([track, track]), T, C2, D2)
