@@ -226,12 +226,10 @@ def fast_alias(config=None) -> str:
 def _factory(dataset=None, weights=None, config=None) -> Detector:
     """``fast``: the small CNN (seedmap.detect.cnn) when ``fast.use_cnn`` and its weights exist, else classical."""
     fc = config.fast if config is not None else FastConfig()
-    if fc.use_cnn:
-        from seedmap.detect.cnn import CnnDetector, default_cnn_path
+    if fast_alias(config) == "fast-cnn":
+        from seedmap.detect.cnn import CnnDetector
 
-        cc = config.cnn if config is not None else None
-        if (cc is not None and cc.weights) or default_cnn_path().is_file():
-            return CnnDetector(cc, fc)
+        return CnnDetector(config.cnn if config is not None else None, fc)
     return FastDetector(fc)
 
 
