@@ -265,7 +265,7 @@ class SemanticSlam:
                     tr.seed_ids.append(int(sids[i]))
                 else:
                     self._add_obs(int(track[i]), k, obs[i], sids[i], T, pts[i], graph, values,
-                                  may_admit=bool(may[i]) or self.tracks[int(track[i])].admitted)
+                                  may_admit=bool(may[i]))
 
         # back-end
         t0 = time.perf_counter()
@@ -370,11 +370,9 @@ class SemanticSlam:
             ing.append(tr.admitted)
         xyz_a = np.asarray(xyz, float).reshape(-1, 3)
         if out_obs:
-            cal = self.calib
-            o = np.asarray(out_obs, float)
+            o = np.asarray(out_obs, float)  # (frame, u_left, u_right, v)
             row = np.asarray(out_row, np.int64)
-            z = cal.fx * cal.baseline / np.maximum(o[:, 1] - o[:, 2], 1e-9)
-            pc = np.c_[(o[:, 1] - cal.cx) * z / cal.fx, (o[:, 3] - cal.cy) * z / cal.fy, z]
+            pc = self.calib.triangulate(o[:, [1, 3]], o[:, 2])
             T = poses[np.searchsorted(frames, o[:, 0].astype(np.int64))]
             pw = np.einsum("mij,mj->mi", T[:, :3, :3], pc) + T[:, :3, 3]
             cnt = np.bincount(row, minlength=len(ids))
