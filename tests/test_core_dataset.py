@@ -87,3 +87,31 @@ def test_calibration_with_zero_baseline_is_refused(tmp_path):
     (tmp_path / "calib.yaml").write_text(text)
     with pytest.raises(InputError, match="baseline"):
         SeedmapDataset(tmp_path)
+
+
+def test_instance_table_round_trip_empty_and_malformed(tmp_path):
+    """Many instances survive write -> read exactly (3-decimal centres); a frame without seeds reads as
+    empty; a damaged table is refused naming the file."""
+    _tiny(tmp_path)
+    rng = np.random.default_rng(3)
+    n = 500
+    boxes = np.sort(rng.integers(0, 60, (n, 2, 2)), axis=1).reshape(n, 4)[:, [0, 2, 1, 3]]
+    inst = Instances(np.arange(1, n + 1).astype(np.uint16), rng.integers(0, 10**6, n), rng.integers(0, 40, n),
+                     boxes, np.round(rng.uniform(-5, 70, (n, 2)), 3), rng.integers(1, 400, n), rng.random(n) < 0.5)
+    labels = np.zeros((48, 64), np.uint16)
+    w = DatasetWriter(tmp_path)
+    w.write_gt_instances(2, "left", labels, inst)
+    w.write_gt_instances(2, "right", labels, Instances.empty())
+    ds = SeedmapDataset(tmp_path)
+    got = ds.gt_instances(2, "left")
+    for name in ("label", "seed_id", "panicle_id", "boxes", "area", "center_visible"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(inst, name))
+    np.testing.assert_allclose(got.center_uv, inst.center_uv, atol=5e-4)
+    assert len(ds.gt_instances(2, "right")) == 0
+    bad = tmp_path / "gt" / "instances" / "left" / "000001.csv"
+    bad.write_text("label,seed_id\n1,2\n")
+    with pytest.raises(InputError, match="000001.csv"):
+        ds.gt_instances(1, "left")
+    bad.write_text("label,seed_id,panicle_id,x0,y0,x1,y1,u,v,area,center_visible\n1,2,3,4,5,6,7,x,9,10,1\n")
+    with pytest.raises(InputError, match="000001.csv: malformed"):
+        ds.gt_instances(1, "left")

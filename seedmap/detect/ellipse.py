@@ -110,14 +110,15 @@ def fit_ellipses_labels(labels: np.ndarray, ids: np.ndarray, method: EllipseMeth
         return out
     lab = np.asarray(labels)
     if method == "moments":
-        flat = lab.reshape(-1).astype(np.int64)
-        nb = int(max(flat.max(initial=0), ids.max()) + 1)
         h, w = lab.shape
+        # coordinates of foreground pixels only (no full-frame coordinate grids: seeds cover a small part)
+        idx = np.flatnonzero(lab.reshape(-1))
+        f = lab.reshape(-1)[idx].astype(np.int64)
+        nb = int(max(f.max(initial=0), ids.max()) + 1)
+        yi, xi = np.divmod(idx, w)
         # moments about the crop centre keep the variance subtraction well conditioned in float64
-        xs = np.tile(np.arange(w, dtype=np.float64) - w / 2, h)
-        ys = np.repeat(np.arange(h, dtype=np.float64) - h / 2, w)
-        fg = flat > 0
-        f, x, y = flat[fg], xs[fg], ys[fg]
+        x = xi.astype(np.float64) - w / 2
+        y = yi.astype(np.float64) - h / 2
         m00 = np.bincount(f, minlength=nb)[ids]
         sx = np.bincount(f, x, nb)[ids]
         sy = np.bincount(f, y, nb)[ids]

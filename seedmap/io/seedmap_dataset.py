@@ -26,7 +26,6 @@
 from __future__ import annotations
 
 import io
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +41,25 @@ from seedmap.records import StereoCalib, StereoFrame, Trajectory
 FORMAT_VERSION = 1
 CAMERAS = ("left", "right")
 INSTANCE_COLUMNS = ("label", "seed_id", "panicle_id", "x0", "y0", "x1", "y1", "u", "v", "area", "center_visible")
+
+_INSTANCE_ROW_FMT = "%d,%d,%d,%d,%d,%d,%d,%.3f,%.3f,%d,%d\n"
+
+
+def _read_instance_table(path: Path) -> np.ndarray:
+    """The instances CSV as an ``N x 11`` float64 array (``0 x 11`` for a header-only frame).
+
+    pandas' C parser (pandas comes with evo): a 15k-row frame reads in ~6 ms against ~32 ms with
+    ``np.loadtxt``; the oracle detector reads two per frame."""
+    import pandas as pd
+
+    try:
+        df = pd.read_csv(path, dtype=np.float64)
+    except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError) as e:
+        raise InputError(f"malformed instance table ({str(e).splitlines()[0]})", path) from None
+    if tuple(df.columns) != INSTANCE_COLUMNS:
+        raise InputError(f"instance table columns are {','.join(map(str, df.columns))}, "
+                         f"expected {','.join(INSTANCE_COLUMNS)}", path)
+    return df.to_numpy(np.float64).reshape(-1, len(INSTANCE_COLUMNS))
 
 
 @dataclass
@@ -131,17 +149,13 @@ class DatasetWriter:
         if labels.dtype != np.uint16:
             raise ValueError("instance label images are uint16")
         write_png(self.root / "gt" / "masks" / cam / frame_name(i), labels)
-        buf = io.StringIO()
-        buf.write(",".join(INSTANCE_COLUMNS) + "\n")
-        for k in range(len(inst)):
-            b = inst.boxes[k]
-            buf.write(
-                f"{int(inst.label[k])},{int(inst.seed_id[k])},{int(inst.panicle_id[k])},"
-                f"{int(b[0])},{int(b[1])},{int(b[2])},{int(b[3])},"
-                f"{inst.center_uv[k, 0]:.3f},{inst.center_uv[k, 1]:.3f},{int(inst.area[k])},"
-                f"{int(bool(inst.center_visible[k]))}\n"
-            )
-        atomic_write_text(self.root / "gt" / "instances" / cam / f"{i:06d}.csv", buf.getvalue())
+        # one %-format over all rows (a per-row f-string loop cost ~55 ms for a 15k-row frame; this ~38 ms)
+        ints = np.column_stack([inst.label.astype(np.int64), inst.seed_id.astype(np.int64),
+                                inst.panicle_id.astype(np.int64), np.trunc(inst.boxes).astype(np.int64)]).tolist()
+        tail = np.column_stack([inst.area.astype(np.int64), inst.center_visible.astype(bool).astype(np.int64)]).tolist()
+        flat = [x for a, uv, c in zip(ints, inst.center_uv.tolist(), tail) for x in (*a, *uv, *c)]
+        text = ",".join(INSTANCE_COLUMNS) + "\n" + (_INSTANCE_ROW_FMT * len(inst)) % tuple(flat)
+        atomic_write_text(self.root / "gt" / "instances" / cam / f"{i:06d}.csv", text)
 
     def write_gt_config(self, text: str) -> None:
         atomic_write_text(self.root / "gt" / "config.yaml", text)
@@ -263,9 +277,7 @@ class SeedmapDataset:
         p = self.root / "gt" / "instances" / cam / f"{i:06d}.csv"
         if not p.is_file():
             raise InputError("ground-truth instance table not found", p)
-        with warnings.catch_warnings():  # a frame without seeds (gaps, blank frames) has a header only
-            warnings.simplefilter("ignore", UserWarning)
-            a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        a = _read_instance_table(p)
         if a.size == 0:
             return Instances.empty()
         return Instances(
