@@ -489,16 +489,51 @@ def consensus_assign(ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndar
 
 
 def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(i, j)`` with ``|pb[j] - pa[i]| <= half`` on both axes (KD-trees, no N x M).
+    """Index pairs ``(i, j)`` with ``|pb[j] - pa[i]| <= half`` on both axes (no N x M, no KD-tree).
 
-    ``half`` (2,) is the half-size of the search box in the same unit as the points."""
-    from scipy.spatial import cKDTree
-
+    ``half`` (2,) is the half-size of the search box in the same unit as the points. The pairs come
+    grouped by ``i`` in increasing order (within a group by the position of ``pb[j]``).
+    Why not a KD-tree (sessions 1-4: two ``cKDTree`` builds + ``sparse_distance_matrix``, the
+    largest CPU cost of the field association): with both axes divided by ``half`` the box is the
+    unit max-norm ball, so the points of B sorted by (unit row, u) give, for each point of A and
+    each of the two or three unit rows its box reaches, one contiguous run of candidates
+    (``searchsorted`` on sorted queries); the exact test ``|pb[j] / half - pa[i] / half| <= 1``
+    (the KD-tree's test, same rounding) then runs on those candidates only."""
     if len(pa) == 0 or len(pb) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     h = np.maximum(np.asarray(half, np.float64), 1e-9)
-    r = cKDTree(pa / h).sparse_distance_matrix(cKDTree(pb / h), 1.0, p=np.inf, output_type="ndarray")
-    return r["i"].astype(np.int64), r["j"].astype(np.int64)
+    sa = np.asarray(pa, np.float64) / h
+    sb = np.asarray(pb, np.float64) / h
+    rb = np.floor(sb[:, 1])
+    ra = np.floor(sa[:, 1])
+    y0 = min(rb.min(), ra.min()) - 1.0
+    x0 = min(sb[:, 0].min(), sa[:, 0].min()) - 2.0
+    # one key per (row, u): rows lie w apart, w wider than the u range plus the search margin, so a
+    # run [u - 1 - m, u + 1 + m] of one row never reaches into the next; m covers the key's rounding
+    w = max(sb[:, 0].max(), sa[:, 0].max()) - x0 + 4.0
+    m = 1.0 + 1e-9 + 8.0 * np.finfo(np.float64).eps * (max(rb.max(), ra.max()) - y0 + 2.0) * w
+    keyb = (rb - y0) * w + (sb[:, 0] - x0)
+    order = np.argsort(keyb, kind="stable")
+    ks = keyb[order]
+    qa = (ra - y0) * w + (sa[:, 0] - x0)
+    oa = np.argsort(qa, kind="stable")  # sorted queries: searchsorted walks the array in order
+    qs = qa[oa]
+    lo = np.empty((len(sa), 3), np.int64)
+    cnt = np.empty((len(sa), 3), np.int64)
+    for c, dr in enumerate((-1.0, 0.0, 1.0)):
+        base = qs + dr * w
+        lo[oa, c] = np.searchsorted(ks, base - m, side="left")
+        cnt[oa, c] = np.searchsorted(ks, base + m, side="right") - lo[oa, c]
+    lo, cnt = lo.reshape(-1), cnt.reshape(-1)
+    total = int(cnt.sum())
+    if total == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    q = np.repeat(np.arange(len(lo)), cnt)
+    offs = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    j = order[lo[q] + offs]
+    i = q // 3
+    ok = (np.abs(sb[j, 0] - sa[i, 0]) <= 1.0) & (np.abs(sb[j, 1] - sa[i, 1]) <= 1.0)
+    return i[ok].astype(np.int64), j[ok].astype(np.int64)
 
 
 def assign_capped(n: int, m: int, ia: np.ndarray, ib: np.ndarray, cost: np.ndarray, max_cost: float) -> Matches:
