@@ -636,8 +636,9 @@ def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np
     if len(m) < 3:
         return fallback
     pa = ka[m.idx_a]
-    at_seed = loo_local_median(pa, kb[m.idx_b] - pa, k)
-    _, near = cKDTree(pa).query(ka, 1)
+    tree = cKDTree(pa)
+    at_seed = loo_local_median(pa, kb[m.idx_b] - pa, k, tree)
+    _, near = tree.query(ka, 1)
     return at_seed[np.asarray(near).reshape(-1)]
 
 
@@ -1019,25 +1020,47 @@ def field_at(pos: np.ndarray, disp: np.ndarray, query: np.ndarray, k: int) -> np
     return np.median(disp[np.asarray(nn).reshape(len(query), kk)], axis=1)
 
 
-def loo_local_median(pos: np.ndarray, val: np.ndarray, k: int) -> np.ndarray:
+def _median_rows(v: np.ndarray) -> np.ndarray:
+    """``np.median(v, axis=-1)`` of a ``(..., k)`` array, bit for bit, for finite values: one
+    ``np.partition`` at the middle (two middles for even ``k``, averaged as ``np.median`` does)
+    without its axis moves and NaN bookkeeping (the median of the field's neighbours is the
+    field association's most frequent operation)."""
+    k = v.shape[-1]
+    if np.isnan(v).any():
+        return np.median(v, axis=-1)
+    h = k // 2
+    if k % 2:
+        return np.partition(v, h, axis=-1)[..., h]
+    p = np.partition(v, (h - 1, h), axis=-1)
+    return (p[..., h - 1] + p[..., h]) / 2.0
+
+
+def loo_local_median(pos: np.ndarray, val: np.ndarray, k: int, tree=None) -> np.ndarray:
     """Median of ``val`` over the ``k`` nearest *other* points of every point ``pos`` (N, 2).
 
     ``val`` (N, D). Leave-one-out, so an outlier never hides itself in its own median; with fewer
-    than 2 points the values themselves are returned (no neighbours to compare with)."""
+    than 2 points the values themselves are returned (no neighbours to compare with). ``tree``: a
+    ``cKDTree`` of ``pos`` when the caller has one (built here otherwise)."""
     from scipy.spatial import cKDTree
 
     n = len(pos)
+    val = np.asarray(val, np.float64)
     if n < 2:
-        return np.asarray(val, np.float64).copy()
+        return val.copy()
     kk = min(k + 1, n)
-    _, nn = cKDTree(pos).query(pos, kk)
+    _, nn = (tree if tree is not None else cKDTree(pos)).query(pos, kk)
     nn = np.asarray(nn).reshape(n, kk)
     is_self = nn == np.arange(n)[:, None]
-    # drop the own point (first column unless positions repeat), else the farthest neighbour
-    drop = np.where(is_self.any(1), is_self.argmax(1), kk - 1)
-    keep = np.ones_like(nn, bool)
-    keep[np.arange(n), drop] = False
-    return np.median(val[nn[keep].reshape(n, kk - 1)], axis=1)
+    if is_self[:, 0].all():  # the usual case: every point is its own nearest neighbour
+        others = nn[:, 1:]
+    else:
+        # drop the own point (first column unless positions repeat), else the farthest neighbour
+        drop = np.where(is_self.any(1), is_self.argmax(1), kk - 1)
+        keep = np.ones_like(nn, bool)
+        keep[np.arange(n), drop] = False
+        others = nn[keep].reshape(n, kk - 1)
+    # (D, N, k): the median runs over the contiguous last axis
+    return _median_rows(val.reshape(n, -1).T[:, others]).T.reshape(val.shape)
 
 
 @dataclass

@@ -61,6 +61,32 @@ def stereo_reproj_error(calib: StereoCalib, pts_cam: np.ndarray, obs: np.ndarray
     return np.where(np.isfinite(e), e, np.inf)
 
 
+def _translation_inliers(calib: StereoCalib, pp: np.ndarray, t: np.ndarray, obs: np.ndarray,
+                         thresh_px: float) -> np.ndarray:
+    """``(H, K)`` bool: ``stereo_reproj_error(calib, pp - t[h], obs) < thresh_px`` for every
+    translation hypothesis ``t`` (H, 3), bit for bit, without the ``(H, K, 3)`` temporaries: the
+    same floating-point expressions per coordinate, each axis's test applied in place (NaN, i.e.
+    a point behind the camera, fails every test as the infinite error does)."""
+    z = pp[None, :, 2] - t[:, 2:3]
+    zs = np.where(z > 1e-6, z, np.nan)
+    x = pp[None, :, 0] - t[:, 0:1]
+    x *= calib.fx
+    x /= zs
+    x += calib.cx  # u_left
+    e = np.abs(x - obs[None, :, 0])
+    ok = e < thresh_px
+    x -= calib.fx * calib.baseline / zs  # u_right
+    np.subtract(x, obs[None, :, 1], out=e)
+    ok &= np.abs(e, out=e) < thresh_px
+    y = pp[None, :, 1] - t[:, 1:2]
+    y *= calib.fy
+    y /= zs
+    y += calib.cy
+    y -= obs[None, :, 2]
+    ok &= np.abs(y, out=y) < thresh_px
+    return ok
+
+
 def ransac_motion(
     calib: StereoCalib,
     pts_prev: np.ndarray,
@@ -136,10 +162,10 @@ def ransac_translation(
         return None
     idx = rng.choice(k, size=min(iters, k), replace=False)
     t = pp[idx] - pc[idx]  # hypotheses (H, 3): prev = cur + t
-    err = stereo_reproj_error(calib, pp[None] - t[:, None, :], obs_cur[None])
-    inl = err < thresh_px
-    mask = inl[int(np.argmax(inl.sum(1)))]
-    tb = t[int(np.argmax(inl.sum(1)))]
+    inl = _translation_inliers(calib, pp, t, np.asarray(obs_cur, float).reshape(-1, 3), thresh_px)
+    best = int(np.argmax(inl.sum(1)))
+    mask = inl[best]
+    tb = t[best]
     for _ in range(refine_iters):
         if not mask.any():
             break
