@@ -104,6 +104,13 @@ def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     return np.take(a, idx, axis=0, mode="clip")
 
 
+def _put_rows(out: np.ndarray, idx: np.ndarray, rows: np.ndarray) -> None:
+    """``out[idx] = rows`` for a C-contiguous (N, k) ``out`` and distinct ``idx``: one ``np.put`` of
+    k-float records (1.6x faster than fancy row assignment, which copies element by element)."""
+    rec = np.dtype((np.void, out.dtype.itemsize * out.shape[1]))
+    np.put(out.view(rec).reshape(-1), idx, np.ascontiguousarray(rows, out.dtype).view(rec).reshape(-1))
+
+
 def _rays_tensor(o: np.ndarray, d: np.ndarray):
     o3d = _o3d()
     r = np.empty((len(d), 6), np.float32)
@@ -280,10 +287,14 @@ def _cover_from_boxes(boxes: np.ndarray, H: int, W: int) -> _Cover:
     R0, C0 = int(r0.min()), int(c0.min())
     h, w = int(r1.max()) - R0 + 1, int(c1.max()) - C0 + 1
     r0, r1, c0, c1 = r0 - R0, r1 - R0 + 1, c0 - C0, c1 - C0 + 1
-    idx = np.concatenate([r0 * (w + 1) + c0, r0 * (w + 1) + c1, r1 * (w + 1) + c0, r1 * (w + 1) + c1])
-    wt = np.concatenate([np.ones(len(r0)), -np.ones(len(r0)), -np.ones(len(r0)), np.ones(len(r0))])
-    acc = np.bincount(idx, wt, minlength=(h + 1) * (w + 1)).reshape(h + 1, w + 1)
-    mask = np.cumsum(np.cumsum(acc, axis=0), axis=1)[:h, :w] > 0.5
+    n = (h + 1) * (w + 1)
+    # int32 counts (exact; float64 weights made the two prefix sums 2.5x slower)
+    acc = np.bincount(np.concatenate([r0 * (w + 1) + c0, r1 * (w + 1) + c1]), minlength=n)
+    acc -= np.bincount(np.concatenate([r0 * (w + 1) + c1, r1 * (w + 1) + c0]), minlength=n)
+    acc = acc.astype(np.int32).reshape(h + 1, w + 1)
+    np.cumsum(acc, axis=0, dtype=np.int32, out=acc)
+    np.cumsum(acc, axis=1, dtype=np.int32, out=acc)
+    mask = acc[:h, :w] > 0
     return _Cover(H, W, R0, C0, mask)
 
 
@@ -515,7 +526,7 @@ class _FrameScene:
                                           nthreads=_o3d_threads())
                 t[env_sel] = ans["t_hit"].numpy()
                 prim[env_sel] = ans["primitive_ids"].numpy()
-                bary[env_sel] = ans["primitive_uvs"].numpy()
+                _put_rows(bary, env_sel, ans["primitive_uvs"].numpy())
         if self.env is not None:
             hit = np.nonzero(t < np.inf)[0]
             prim[hit] += self.n_soil
@@ -546,7 +557,7 @@ class _FrameScene:
             t[jj] = tk[better]
             pk = ans["primitive_ids"].numpy()[better]
             prim[jj] = pk
-            bary[jj] = ans["primitive_uvs"].numpy()[better]
+            _put_rows(bary, jj, ans["primitive_uvs"].numpy()[better])
             cls[jj] = np.where(pk < bvh.n_seed_tris, CLS_SEED, CLS_RACHIS)
             obj[jj] = k
         seed = np.full(n, -1, np.int64)
@@ -778,7 +789,7 @@ class _Shading:
         out = np.zeros((n, 3), np.float32)
         rad = self.direct * v
         rad += self.amb
-        out[self.live] = rad.T
+        _put_rows(out, self.live, rad.T)
         return out
 
 
@@ -1231,7 +1242,7 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
             fresh_rgb = _shade(fs, o, ds[nf], sub, light, light_axes, cfg, rng, ps[nf], scovers)
     sub_rgb = _take(rgb, src)
     if len(fresh):
-        sub_rgb[fresh] = fresh_rgb
+        _put_rows(sub_rgb, fresh, fresh_rgb)
     # a sub-sample on another seed than its pixel's is shaded where its ray meets that seed (seed
     # rims are darker than the neighbouring pixel centre: the surface turns away from the flash),
     # with the flash visibility of the pixel that sees the seed
@@ -1248,7 +1259,7 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
         sub = _Hits(t_hit, np.full(len(ns), CLS_SEED, np.uint8), h.obj[s_src], zero, np.zeros((len(ns), 2), np.float32),
                     sid)
         sh = _shade_parts(fs, o, ds, sub, light, light_axes, cfg, rng, vis_given=vis[s_src])
-        sub_rgb[ns] = sh.radiance(len(ns))
+        _put_rows(sub_rgb, ns, sh.radiance(len(ns)))
     acc = _take(rgb, idx)
     base = acc.copy()
     acc *= S
@@ -1257,7 +1268,8 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
         e = ej_a[start:start + c]
         acc[e] += sub_rgb[start:start + c] - base[e]
         start += c
-    rgb[idx] = acc * np.float32(1.0 / S)
+    acc *= np.float32(1.0 / S)
+    _put_rows(rgb, idx, acc)
 
 
 def _camera_dirs(world: World, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
@@ -1318,7 +1330,8 @@ _GAMMA_LUT = np.round(255.0 * np.linspace(0, 1, 4096) ** (1 / 2.2)).astype(np.ui
 
 def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random.Generator, gain: float,
              depth: np.ndarray | None, cache: dict) -> np.ndarray:
-    """Sensor + ISP model: gain, vignetting, blur, noise, gamma, 8-bit (and optional JPEG)."""
+    """Sensor + ISP model: gain, vignetting, blur, noise, gamma, 8-bit (and optional JPEG). ``lin`` (H, W, 3)
+    float32 is overwritten."""
     import cv2
 
     ic = cfg.imaging
@@ -1329,7 +1342,8 @@ def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random
         yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
         rn2 = ((xx - calib.cx) ** 2 + (yy - calib.cy) ** 2) / (0.25 * (W * W + H * H))
         vig = cache[key] = (1 - ic.vignetting * rn2).astype(np.float32)[..., None]
-    img = lin * (vig * np.float32(gain * ic.full_well))  # electrons
+    img = lin  # (the caller's buffer, scaled in place)
+    img *= vig * np.float32(gain * ic.full_well)  # electrons
     if ic.motion_blur:
         z = np.nanmedian(depth) if depth is not None and np.isfinite(depth).any() else REF_DISTANCE
         blur_px = calib.fx * cfg.motion.speed * ic.exposure_time / max(float(z), 0.05)
@@ -1347,7 +1361,8 @@ def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random
     img += noise
     img *= np.float32(4095.0 / ic.full_well)
     np.clip(img, 0, 4095, out=img)
-    out = np.take(_GAMMA_LUT, img.astype(np.intp), mode="clip")
+    # uint16 codes (the same truncation as an integer cast; a quarter of the memory traffic of intp)
+    out = np.take(_GAMMA_LUT, img.astype(np.uint16), mode="clip")
     if ic.jpeg_quality is not None:
         ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(ic.jpeg_quality)])
         if ok:
