@@ -318,26 +318,39 @@ def neighbour_sums(
     ok = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(-1)
     # axis 0: horizontal band (|dy| < eps) -> left / right sets; axis 1: vertical -> top / bottom
     for along, band, col in ((0, 1, 0), (1, 0, 2)):
-        i, j = _band_pairs(kp[:, band], eps)
-        if len(i) == 0:
+        # the pairs of _band_pairs, in its order, but indexed in the band-sorted order (contiguous
+        # gathers; the sums are scattered back at the end: same additions in the same order)
+        order = np.argsort(kp[:, band], kind="stable")
+        sb, sa = kp[order, band], kp[order, along]
+        hi = np.searchsorted(sb, sb + eps, side="left")
+        cnt = np.maximum(hi - np.arange(n) - 1, 0)
+        total = int(cnt.sum())
+        if total == 0:
             continue
-        d = kp[j, along] - kp[i, along]
-        keep = (d != 0) & (np.abs(d) < delta)
-        i, j, d = i[keep], j[keep], d[keep]
-        dist = np.hypot(d, kp[j, band] - kp[i, band])
+        it = np.int32 if n < 2**31 - 1 else np.int64
+        # j = i + 1 + (position within i's run), written as one running index minus run starts
+        j = np.arange(1, total + 1, dtype=it)
+        j -= np.repeat((np.cumsum(cnt) - cnt - np.arange(n)).astype(it), cnt)
+        d = sa[j]
+        d -= np.repeat(sa, cnt)
+        keep = np.flatnonzero((d != 0) & (np.abs(d) < delta))
+        i = np.repeat(np.arange(n, dtype=it), cnt)[keep]
+        j, d = j[keep], d[keep]
+        dist = np.hypot(d, sb[j] - sb[i])
         # of each pair, ``first`` lies before (left of / above) ``second``: first is in second's
         # left/top set, second in first's right/bottom set
         before = d > 0
         first = np.where(before, i, j)
         second = np.where(before, j, i)
         if valid is None:
-            out[:, col] = np.bincount(second, dist, minlength=n)
-            out[:, col + 1] = np.bincount(first, dist, minlength=n)
+            out[order, col] = np.bincount(second, dist, minlength=n)
+            out[order, col + 1] = np.bincount(first, dist, minlength=n)
         else:
-            sel = ok[first]
-            out[:, col] = np.bincount(second[sel], dist[sel], minlength=n)
-            sel = ok[second]
-            out[:, col + 1] = np.bincount(first[sel], dist[sel], minlength=n)
+            oks = ok[order]
+            sel = oks[first]
+            out[order, col] = np.bincount(second[sel], dist[sel], minlength=n)
+            sel = oks[second]
+            out[order, col + 1] = np.bincount(first[sel], dist[sel], minlength=n)
     return out
 
 
@@ -638,8 +651,16 @@ def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np
     pa = ka[m.idx_a]
     tree = cKDTree(pa)
     at_seed = loo_local_median(pa, kb[m.idx_b] - pa, k, tree)
-    _, near = tree.query(ka, 1)
-    return at_seed[np.asarray(near).reshape(-1)]
+    # a seed match's own keypoint is its nearest seed (distance 0) unless two seed matches share
+    # a position (then the KD-tree decides, as before); only the other keypoints are queried
+    near = np.full(len(ka), -1, np.int64)
+    near[m.idx_a] = np.arange(len(m))
+    if len(np.unique(pa.view(np.complex128))) < len(pa):
+        near[:] = -1
+    rest = np.flatnonzero(near < 0)
+    if len(rest):
+        near[rest] = np.asarray(tree.query(ka[rest], 1)[1]).reshape(-1)
+    return at_seed[near]
 
 
 def second_best(ia: np.ndarray, ib: np.ndarray, c: np.ndarray, m: Matches, n: int, mm: int) -> np.ndarray:
