@@ -615,12 +615,14 @@ def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     if len(i) == 0:
         return np.tile(glob, (n, 1))
     i = sub[i]
+    pcx = np.clip((ka[:, 0] // cell).astype(int), 0, ncx - 1)
+    pcy = np.clip((ka[:, 1] // cell).astype(int), 0, ncy - 1)
     d = kb[j] - ka[i]
     ub = np.clip(((d - lo) / binw).astype(int), 0, nb - 1)
-    cx = np.clip((ka[i, 0] // cell).astype(int), 0, ncx - 1)
-    cy = np.clip((ka[i, 1] // cell).astype(int), 0, ncy - 1)
-    flat = ((cx * ncy + cy) * nb[0] + ub[:, 0]) * nb[1] + ub[:, 1]
-    hist = np.bincount(flat, minlength=ncx * ncy * nb[0] * nb[1]).astype(np.float32)
+    flat = ((pcx * ncy + pcy)[i] * nb[0] + ub[:, 0]) * nb[1] + ub[:, 1]
+    hist = np.zeros(ncx * ncy * nb[0] * nb[1], np.float32)
+    cells, votes = np.unique(flat, return_counts=True)
+    hist[cells] = votes
     hist = hist.reshape(ncx, ncy, nb[0], nb[1])
     g = hist.sum((0, 1))
     gi = np.unravel_index(int(np.argmax(g)), g.shape)
@@ -631,8 +633,6 @@ def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     has = flat_sm.max(-1) > 0
     peak = lo + (np.stack(np.unravel_index(best, (nb[0], nb[1])), -1) + 0.5) * binw
     peak[~has] = glob
-    pcx = np.clip((ka[:, 0] // cell).astype(int), 0, ncx - 1)
-    pcy = np.clip((ka[:, 1] // cell).astype(int), 0, ncy - 1)
     return peak[pcx, pcy]
 
 
