@@ -846,14 +846,14 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     em = span(CLS_STALK, CLS_LEAF)
     if em.stop > em.start:
         le = live[em]
-        tab = _rows(fs.tri_table, np.take(h.prim, le))  # (18, e): vertex normals (9), uv (6), albedo (3)
-        bary = _take(h.bary, le)
-        b1 = np.ascontiguousarray(bary[:, 0])
-        b2 = np.ascontiguousarray(bary[:, 1])
-        b0 = 1 - b1 - b2
-        for c in range(3):
-            nrm[c, em] = tab[c] * b0 + tab[3 + c] * b1 + tab[6 + c] * b2
-        albedo[:, em] = tab[15:18]
+        # (e, 18) rows: vertex normals (9), uv (6), albedo (3); interpolated with einsum over the rows
+        # as they come (per-column arithmetic on the transposed rows reads 72-byte strides: 2.5x slower)
+        tab = np.take(fs.tri_table, np.take(h.prim, le), axis=0, mode="clip")
+        bw = np.empty((len(le), 3), np.float32)  # barycentric weights of the three vertices
+        bw[:, 1:] = _take(h.bary, le)
+        bw[:, 0] = 1 - bw[:, 1] - bw[:, 2]
+        nrm[:, em] = np.einsum("ek,ekc->ce", bw, tab[:, :9].reshape(-1, 3, 3))
+        albedo[:, em] = tab[:, 15:18].T
         st_ = span(CLS_STALK, CLS_STALK)
         ks[st_] = KS_STALK
         lf = span(CLS_LEAF, CLS_LEAF)
@@ -861,8 +861,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
             ks[lf] = KS_LEAF
             shin[lf] = SHIN_LEAF
             li = slice(lf.start - em.start, lf.stop - em.start)  # the leaves within the env slice
-            s = tab[9, li] * b0[li] + tab[11, li] * b1[li] + tab[13, li] * b2[li]
-            w = tab[10, li] * b0[li] + tab[12, li] * b1[li] + tab[14, li] * b2[li]
+            s, w = np.einsum("ek,ekc->ce", bw[li], tab[li, 9:15].reshape(-1, 3, 2))
             wi = np.clip(w * np.float32(_LEAF_LUT_N - 1) + np.float32(0.5), 0, _LEAF_LUT_N - 1).astype(np.int32)
             tipdry = np.clip((s - np.float32(0.75)) * np.float32(4.0), 0, 1)
             tipdry *= np.float32(0.25)
@@ -885,14 +884,15 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     sm = span(CLS_SEED, CLS_SEED)
     if sm.stop > sm.start:
         sid = np.take(h.seed, live[sm])
-        tab = _rows(fs.seed_tab, sid)
-        dyn, st = tab[:12], tab[12:]  # axes now (9, row-major), centre now (3); see _seed_static
-        dp = p[:, sm] - dyn[9:12]
-        # local coordinates q_j = sum_i A[i, j] dp_i; normal n_i = sum_j A[i, j] q_j / r_j^2
-        q = [dyn[j] * dp[0] + dyn[3 + j] * dp[1] + dyn[6 + j] * dp[2] for j in range(3)]
-        wq = [q[j] * st[j] for j in range(3)]
-        for i in range(3):
-            nrm[i, sm] = dyn[3 * i] * wq[0] + dyn[3 * i + 1] * wq[1] + dyn[3 * i + 2] * wq[2]
+        rows = np.take(fs.seed_tab, sid, axis=0, mode="clip")  # (s, 24), see _FrameScene
+        A = rows[:, :9].reshape(-1, 3, 3)  # axes now, A[s, i, j] = axis j's component i
+        st = rows[:, 12:].T  # _seed_static's columns
+        dp = p[:, sm] - rows[:, 9:12].T  # from the centre now
+        # local coordinates q_j = sum_i A[i, j] dp_i; normal n_i = sum_j A[i, j] q_j / r_j^2 (einsum
+        # over the rows as gathered: arithmetic on the transposed rows reads 96-byte strides)
+        q = np.einsum("sij,is->js", A, dp)
+        wq = q * st[:3]
+        nrm[:, sm] = np.einsum("sij,js->is", A, wq)
         g = np.clip((st[10] - q[2] * st[3]) * np.float32(1 / 0.3), 0, 1)
         g = g * g * (3 - 2 * g)
         albedo[:, sm] = st[4:7] + (st[7:10] - st[4:7]) * g
