@@ -5,6 +5,18 @@ Method ``multiview`` (default): counts from the 2D detections of every view (lef
 image) and the registered camera poses; no per-detection SGBM depth is used (SGBM depth is missing
 for many seed-sized patches and has heavy tails, which made ghost and missing seeds).
 
+0a. *Scale-aware tolerances* (``mv_scale_ref_px`` > 0; on in the ``gt`` detector profile): the pixel
+   tolerances named in ``mv_scale_keys`` (row difference of a stereo pair, link and reprojection
+   tolerances, growing radius) are multiplied by (median left detection size of the scan /
+   ``mv_scale_ref_px``) ** ``mv_scale_power``, clipped to [``mv_scale_min``, ``mv_scale_max``]. A partly
+   hidden seed's visible centre differs between the left and the right image and between views by a
+   fraction of its size: on panicle 114 (median ``gt`` keypoint size 9.2 px vs 6.9 px on 111) 16 % of
+   the true left/right pairs lie more than 2 px apart in rows (111: 3 %) and only 66 % were chosen
+   (111: 88 %), so fixed pixel tolerances under-counted it by 17.7 %. With ``gt`` (reference 7 px,
+   power 1.5; tuning panicles 95-100 + 111-115) MAPE 4.6 % -> 2.9 %, 114: -17.7 % -> -6.2 %. The
+   support scale ``mv_support_sigma_px`` is not scaled (it lets ghost matches gather support: +2 to
+   +7 % on the large-seeded panicles). The detectors' ellipse sizes barely follow the seed size, so
+   their profiles keep fixed pixels (seedmap.recon.config.DETECTOR_PROFILES).
 0. *Optional* (``mv_merge_px`` > 0; off by default): keypoints of one image closer than
    ``mv_merge_px`` are joined into their mean first -- a detector that fires twice on one seed
    (the CNN ``fast`` detector does on ~30 % of the seeds, peaks 1-3 px apart) otherwise makes two
@@ -73,7 +85,8 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
 that the pipeline and ``seedmap count`` apply on top of the count settings
 (:meth:`CountConfig.for_detector`; ``count.detector_profile=false`` turns them off): ``gt`` joint
 links at 1.5 px; ``fast`` merges keypoints closer than 3 px first and joins tracks sharing views
-within 0.8 diameters; ``fast-classic`` joins them within 1.0 diameter. Chosen on the tuning
+within 0.8 diameters; ``fast-classic`` joins them within 1.0 diameter; ``gt`` also scales its pixel
+tolerances with the seed size (step 0a, session 5). Chosen on the tuning
 panicles 95-100 only (seedmap.recon.config.DETECTOR_PROFILES). A detector without a profile gets
 the plain settings.
 
@@ -832,6 +845,31 @@ def _link_edges(by_view: dict, trees: dict, X: np.ndarray, uvL: np.ndarray, uR: 
     return E[np.lexsort((E[:, 1], E[:, 0]))]
 
 
+def size_scale(views: list[StereoKeypoints | None], cfg: CountConfig) -> float:
+    """Scale factor of the pixel tolerances (step 0a, module docstring): (median left detection size
+    of the scan, px / ``mv_scale_ref_px``) ** ``mv_scale_power``, clipped to [``mv_scale_min``,
+    ``mv_scale_max``]; 1 when scaling is off or there are no detections."""
+    sizes = [v.left_size for v in views if v is not None and len(v.left_size)]
+    if cfg.mv_scale_ref_px <= 0 or not sizes:
+        return 1.0
+    med = float(np.median(np.concatenate(sizes)))
+    return float(np.clip((med / cfg.mv_scale_ref_px) ** cfg.mv_scale_power, cfg.mv_scale_min, cfg.mv_scale_max))
+
+
+def scaled_tolerances(views: list[StereoKeypoints | None], cfg: CountConfig) -> CountConfig:
+    """``cfg`` with its ``mv_scale_keys`` pixel tolerances multiplied by :func:`size_scale` and the
+    scaling switched off (applied once)."""
+    from seedmap.errors import ConfigError
+
+    bad = [k for k in cfg.mv_scale_keys if not isinstance(getattr(cfg, k, None), float)]
+    if bad:
+        raise ConfigError(f"count.mv_scale_keys: {', '.join(bad)} is not a pixel tolerance of CountConfig")
+    f = size_scale(views, cfg)
+    upd = {k: getattr(cfg, k) * f for k in cfg.mv_scale_keys}
+    upd["mv_scale_ref_px"] = 0.0
+    return cfg.model_copy(update=upd)
+
+
 def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, calib, cfg: CountConfig,
                     detail: bool = False) -> SeedCount | tuple[SeedCount, MultiViewDetail]:
     """The ``multiview`` method (module docstring): count seeds from the 2D detections ``views``
@@ -846,6 +884,9 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     V = len(views)
     if len(poses) != V:
         raise ValueError(f"{len(poses)} poses for {V} views")
+    if cfg.mv_scale_ref_px > 0:
+        # step 0a: pixel tolerances scaled with the seeds' median image size (module docstring)
+        cfg = scaled_tolerances(views, cfg)
     if cfg.mv_merge_px > 0:
         # step 0: duplicate detections of one seed (a detector firing twice on it) -> one keypoint
         merged = [merge_close_keypoints(v, cfg.mv_merge_px) if v is not None else (None, np.zeros(0, np.int64))
