@@ -4,7 +4,8 @@ For each range length (default 1.5 m and 5.0 m, the paper's longest ranges are ~
 world, renders one warm-up pair (builds the first panicle BVHs) and then ``--frames`` consecutive
 pairs from the middle of the range, and reports CPU and wall seconds per stereo pair
 (``render_stereo``), the same for pairs at the start of the range, the PNG encoding CPU a written
-pair adds (both images and label masks), world build time and peak memory. The render cost should not depend on the
+pair adds (both images and label masks) and the CPU of the whole per-frame write path of
+``simulate_range`` (PNGs, instance tables, atomic writes), world build time and peak memory. The render cost should not depend on the
 range length (only the geometry near the camera is traced): ``ratio_long_vs_short`` ~ 1.
 
 Baseline measured in the same run, so numbers from loaded machines compare: one bare Open3D
@@ -66,6 +67,19 @@ def _bench_range(length: float, seed: int, scale: float, n: int) -> dict:
     for img in (r.left, r.right, r.left_labels, r.right_labels):
         encode_png(img)
     png_cpu = time.process_time() - c0
+    # ... and the whole per-frame write path of ``simulate_range`` (PNGs, label masks, instance tables,
+    # atomic file writes) into a scratch folder
+    import tempfile
+
+    from seedmap.io.seedmap_dataset import DatasetWriter
+
+    with tempfile.TemporaryDirectory() as tmp:
+        w = DatasetWriter(Path(tmp))
+        c0 = time.process_time()
+        w.write_frame(i, r.left, r.right)
+        w.write_gt_instances(i, "left", r.left_labels, r.left_instances)
+        w.write_gt_instances(i, "right", r.right_labels, r.right_instances)
+        write_cpu = time.process_time() - c0
     # frames at the start of the range (panicles entering the view; BVHs of the first panicles built
     # by the first of them, which is not counted)
     start = list(range(0, min(len(traj), n + 1)))
@@ -110,6 +124,8 @@ def _bench_range(length: float, seed: int, scale: float, n: int) -> dict:
         "start_cpu_s_per_pair_all": [round(c, 3) for c in start_cpu],
         "png_encode_cpu_s_per_pair": round(png_cpu, 3),
         "cpu_s_per_pair_with_png": round(per_cpu + png_cpu, 3),
+        "write_cpu_s_per_pair": round(write_cpu, 3),
+        "cpu_s_per_pair_rendered_and_written": round(per_cpu + write_cpu, 3),
         "wall_s_per_pair_median": round(per_wall, 3),
         "bare_env_cast_cpu_s_one_image": round(bare_cpu, 4),
         "ratio_cpu_pair_vs_bare_cast": round(per_cpu / bare_cpu, 2) if bare_cpu > 0 else None,

@@ -1085,14 +1085,15 @@ def _seed_entry(fs: _FrameScene, o: np.ndarray, d: np.ndarray, sid: np.ndarray) 
     """Distance (m, float32) at which rays ``o + t d`` (``o`` (3,), ``d`` unit (n, 3)) enter seed ``sid``'s
     ellipsoid at this instant (the tangent point where they just miss it). Started at the ray's closest
     approach to the seed centre (millimetres, not the camera's metres: well conditioned in float32)."""
-    tab = _rows(fs.seed_tab, sid)
-    dyn, inv_r = tab[:12], np.sqrt(tab[12:15])
+    rows = np.take(fs.seed_tab, sid, axis=0, mode="clip")  # (n, 24), see _FrameScene
+    A = rows[:, :9].reshape(-1, 3, 3)  # A[s, i, j] = axis j's component i
+    inv_r = np.sqrt(rows[:, 12:15].T)
     dT = np.ascontiguousarray(d.T)
-    dp = o.astype(np.float32)[:, None] - dyn[9:12]
+    dp = o.astype(np.float32)[:, None] - rows[:, 9:12].T
     tc = -_dot3(dp, dT)
     dp += dT * tc
-    q0 = [(dyn[j] * dp[0] + dyn[3 + j] * dp[1] + dyn[6 + j] * dp[2]) * inv_r[j] for j in range(3)]
-    qd = [(dyn[j] * dT[0] + dyn[3 + j] * dT[1] + dyn[6 + j] * dT[2]) * inv_r[j] for j in range(3)]
+    q0 = np.einsum("sij,is->js", A, dp) * inv_r
+    qd = np.einsum("sij,is->js", A, dT) * inv_r
     a = qd[0] * qd[0] + qd[1] * qd[1] + qd[2] * qd[2]
     b = q0[0] * qd[0] + q0[1] * qd[1] + q0[2] * qd[2]
     c = q0[0] * q0[0] + q0[1] * q0[1] + q0[2] * q0[2] - 1
