@@ -16,15 +16,15 @@ matches (or of a first keypoint-only matching) widened by a margin (:func:`dispa
 Full resolution is kept: at half resolution the error doubles (median 0.6 px, 90th percentile
 ~2 px) and the recall of the 1-px match drops from 0.88 to 0.70 (slam_r1 frame 5).
 Both images are padded on the left by the largest disparity searched, so keypoints near the left
-image border (which SGBM leaves without disparity otherwise) still get one.
+image border (which SGBM leaves without disparity otherwise) still get one. The SGBM call itself is
+:func:`seedmap.stereo.sgbm_disparity` (grey matching), the same one the reconstruction uses.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-#: SGBM stores disparities as fixed point with 4 fractional bits.
-_SGBM_SCALE = 16.0
+from seedmap.stereo import sgbm_disparity  # noqa: F401  (the one SGBM call, shared with seedmap.recon)
 
 
 def disparity_search_range(disparities: np.ndarray, margin_px: float, min_disparity_px: float,
@@ -48,47 +48,6 @@ def disparity_search_range(disparities: np.ndarray, margin_px: float, min_dispar
         lo = max(float(min_disparity_px), float(np.median(d)) - nmax / 2)
         num = nmax
     return int(np.floor(lo)), num
-
-
-def sgbm_disparity(left: np.ndarray, right: np.ndarray, min_disparity: int, num_disparities: int,
-                   block: int = 3, uniqueness: int = 5, lr_max_diff: int = 0) -> np.ndarray:
-    """Dense disparity ``(H, W)`` float32 of a rectified pair (image px, NaN where SGBM found none).
-
-    ``left``/``right`` RGB uint8 (or grey) images. OpenCV ``StereoSGBM`` in 3-way mode with the
-    usual smoothness penalties ``P1 = 8 b^2``, ``P2 = 32 b^2`` for a block of ``b`` px; both images
-    are padded on the left by ``min_disparity + num_disparities`` columns (replicated border) so
-    that every column gets a disparity, and the padding is cropped again. ``lr_max_diff`` > 0 enables
-    SGBM's left-right consistency check (pixels whose left and right disparities differ by more
-    than this many px, typically occluded in one view, get none); 0 = off."""
-    import cv2
-
-    gl = _grey(left)
-    gr = _grey(right)
-    num = max(16, int(num_disparities) // 16 * 16)
-    mind = int(min_disparity)
-    pad = max(0, mind + num)
-    if pad:
-        gl = cv2.copyMakeBorder(gl, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
-        gr = cv2.copyMakeBorder(gr, 0, 0, pad, 0, cv2.BORDER_REPLICATE)
-    b = int(block)
-    sgbm = cv2.StereoSGBM_create(minDisparity=mind, numDisparities=num, blockSize=b, P1=8 * b * b,
-                                 P2=32 * b * b, uniquenessRatio=int(uniqueness), disp12MaxDiff=int(lr_max_diff),
-                                 mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-    raw = sgbm.compute(gl, gr)[:, pad:]
-    d = raw.astype(np.float32) / _SGBM_SCALE
-    d[raw < mind * _SGBM_SCALE] = np.nan  # SGBM marks "no disparity" with minDisparity - 1
-    return d
-
-
-def _grey(img: np.ndarray) -> np.ndarray:
-    import cv2
-
-    a = np.asarray(img)
-    if a.ndim == 3:
-        a = cv2.cvtColor(np.ascontiguousarray(a[..., :3]), cv2.COLOR_RGB2GRAY)
-    if a.dtype != np.uint8:
-        a = np.clip(a, 0, 255).astype(np.uint8)
-    return np.ascontiguousarray(a)
 
 
 def disparity_at(disp: np.ndarray, kp: np.ndarray, radius: int = 1) -> np.ndarray:

@@ -9,6 +9,7 @@ import numpy as np
 
 from seedmap.recon.config import CloudConfig, SeedCentreConfig, SgbmConfig
 from seedmap.records import Detections, StereoCalib
+from seedmap.stereo import sgbm_disparity
 
 
 @dataclass
@@ -74,17 +75,10 @@ def compute_disparity(left: np.ndarray, right: np.ndarray, calib: StereoCalib, s
         # identical crops keep disparities; the left margin holds the disparity search range
         c0, c1 = max(cols[0] - pad - lo - n, 0), min(cols[-1] + pad + 1, W)
         L, R = L[r0:r1, c0:c1], R[r0:r1, c0:c1]
-    bs = sgbm.block_size
-    ch = 3
-    modes = {"sgbm": cv2.STEREO_SGBM_MODE_SGBM, "hh": cv2.STEREO_SGBM_MODE_HH, "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY}
-    matcher = cv2.StereoSGBM_create(
-        minDisparity=lo, numDisparities=n, blockSize=bs,
-        P1=sgbm.p1_factor * ch * bs * bs, P2=sgbm.p2_factor * ch * bs * bs,
-        disp12MaxDiff=sgbm.disp12_max_diff, uniquenessRatio=sgbm.uniqueness_ratio,
-        speckleWindowSize=sgbm.speckle_window_size, speckleRange=sgbm.speckle_range, mode=modes[sgbm.mode])
-    raw = matcher.compute(cv2.cvtColor(L, cv2.COLOR_RGB2BGR), cv2.cvtColor(R, cv2.COLOR_RGB2BGR))
-    disp = raw.astype(np.float32) / 16.0
-    disp[raw <= (lo - 1) * 16] = np.nan
+    disp = sgbm_disparity(L, R, lo, n, sgbm.block_size, sgbm.uniqueness_ratio, sgbm.disp12_max_diff,
+                          p1_factor=sgbm.p1_factor, p2_factor=sgbm.p2_factor,
+                          speckle_window=sgbm.speckle_window_size, speckle_range=sgbm.speckle_range,
+                          mode=sgbm.mode, grey=False, pad_left=False)
     if (r0, r1, c0, c1) != (0, H, 0, W):
         full = np.full((H, W), np.nan, np.float32)
         full[r0:r1, c0:c1] = disp
