@@ -21,7 +21,9 @@ that sees the same object, deciding which object without a ray where the seeds' 
 outlines allow (``_antialias``; sub-samples on a seed rim are shaded analytically on the ellipsoid
 with that pixel's flash visibility), and the rest are traced only against the objects the pixel and
 the pixels it lies towards see. Shading is float32 struct-of-arrays with per-seed and per-triangle
-tables built once per frame. Flash samples and sensor noise use separate random streams.
+tables built once per frame; a pixel's table row is gathered whole and interpolated with ``einsum``
+(arithmetic on single columns of the transposed rows reads 72- or 96-byte strides, 2.5x slower).
+Flash samples and sensor noise use separate random streams.
 """
 
 from __future__ import annotations
