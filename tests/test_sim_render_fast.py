@@ -167,3 +167,29 @@ def test_antialiasing_matches_tracing_every_subsample(scene):
     # shadow rays from mesh points on a grazing rim partly hit the seed's own triangles)
     # (measured +2.5 %)
     assert abs(fast[idx].mean() - ref[idx].mean()) < 0.04 * ref[idx].mean(), (fast[idx].mean(), ref[idx].mean())
+
+
+def test_put_rows_and_integer_covers_equal_the_plain_numpy_forms():
+    """The row scatter and the int32 difference-array covers used by the renderer give exactly what
+    fancy assignment and painting every box pixel by pixel give."""
+    rng = np.random.default_rng(7)
+    for k in (2, 3):
+        out = rng.random((500, k), np.float32)
+        ref = out.copy()
+        idx = rng.choice(500, 200, replace=False)
+        rows = rng.random((k, 200), np.float32).T  # a transposed (non-contiguous) source, as in radiance
+        ref[idx] = rows
+        render._put_rows(out, idx, rows)
+        assert np.array_equal(out, ref)
+    H, W = 60, 80
+    boxes = np.column_stack([rng.uniform(-10, W, 40), rng.uniform(-10, H, 40), np.zeros(40), np.zeros(40)])
+    boxes[:, 2] = boxes[:, 0] + rng.uniform(-2, 25, 40)  # some empty (u1 < u0), some past the border
+    boxes[:, 3] = boxes[:, 1] + rng.uniform(0, 25, 40)
+    cov = render._cover_from_boxes(boxes, H, W)
+    painted = np.zeros((H, W), bool)
+    vv, uu = np.mgrid[0:H, 0:W]
+    for u0, v0, u1, v1 in boxes:
+        painted |= (uu >= u0) & (uu <= u1) & (vv >= v0) & (vv <= v1)
+    got = np.zeros((H, W), bool)
+    got[cov.r0:cov.r0 + cov.mask.shape[0], cov.c0:cov.c0 + cov.mask.shape[1]] = cov.mask
+    assert np.array_equal(got, painted)
