@@ -271,6 +271,9 @@ def train_fast_cnn_cmd(
     heat_min_area: float = typer.Option(10.0, "--heat-min-area",
                                         help="Seeds with fewer visible px are no heatmap peaks (4-px slivers "
                                              "up to it are ignored)."),
+    box_center_weight: float = typer.Option(0.0, "--box-center-weight",
+                                            help="Box/offset loss weight of a seed pixel = 1 + this x its heat "
+                                                 "target (0 = every mask pixel alike)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
@@ -287,7 +290,8 @@ def train_fast_cnn_cmd(
     if (out / "fast_cnn.onnx").exists() and not resume:
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
-                         iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area)
+                         iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
+                         box_center_weight=box_center_weight)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "

@@ -100,3 +100,25 @@ def test_peak_window_five_keeps_one_of_two_close_peaks():
     assert len(d3[0]) == 2 and len(d5[0]) == 1 and (d5[1][0], d5[2][0]) == (8, 8)
     with pytest.raises(ConfigError, match="peak_window"):
         peak_kernel(4)
+
+
+def test_center_weight_makes_errors_at_the_peak_cost_more_than_at_the_rim():
+    """box_center_weight: the same 1 px edge error costs more at the heat peak than at a rim pixel."""
+    torch = pytest.importorskip("torch")
+    from seedmap.detect.train_cnn import losses
+
+    im = _one_seed_image(sliver_area=1.0)
+    X, H, R, M, IG = (torch.from_numpy(np.ascontiguousarray(a)) for a in
+                      crop_batch([im], 1, 96, np.random.default_rng(1), seed_fraction=1.0, augment=False))
+    py, px = np.unravel_index(int(torch.argmax(H[0])), H[0].shape)
+    ys, xs = np.nonzero(M[0].numpy() * (H[0].numpy() < 0.01))  # a mask pixel outside the Gaussian
+    ry, rx = ys[0], xs[0]
+
+    def box_l1(y: int, x: int, cw: float) -> float:
+        out = torch.zeros(1, 7, 96, 96)
+        out[:, 1:7] = R
+        out[0, 3, y, x] += 1.0
+        return float(losses(out, H, R, M, IG, iou_weight=1.0, center_weight=cw)[2])
+
+    assert box_l1(py, px, 0.0) == pytest.approx(box_l1(ry, rx, 0.0))  # uniform: every pixel alike
+    assert box_l1(py, px, 4.0) > 2.0 * box_l1(ry, rx, 4.0)

@@ -30,6 +30,15 @@ data/det_s33 data/det_s34 data/det_s35 --val data/det_s36 --out DIR`` (the defau
 simulate range --length 0.5 --seed N``). Session 3: 12/24 channels, L1 boxes only, heat from 4 px,
 no rescale, 2,500 steps (445 s CPU).
 
+Session 5, tried and not shipped (the session-4 weights stay): training on twice the ranges (det_s1, det_s31-35
+and det_s40-44, each ``seedmap simulate range --length 0.5 --seed N``), 4,000 steps, with or without
+``--box-center-weight 4`` (a mask pixel's box/offset loss weighs 1 + 4 x its heat target, so the peak's 3x3
+neighbourhood that :func:`seedmap.detect.cnn.decode` reads counts most; 452 s CPU on one thread). Validation F1
+at threshold 0.45 (det_s36 / det_s45): session-4 weights 0.898 / 0.883, more data 0.900 / 0.887, more data + centre
+weight 0.899 / 0.888 with the keypoint median 0.31 -> 0.29 px / 0.36 -> 0.34 px. On the held-out ranges the
+frozen centre-weighted network was no better: F1 det_s2 0.861 (session 4: 0.871), det_s21 0.889 (0.888),
+det_s2_new 0.891 (0.892), det_s22 0.810 (0.817), fresh det_s23 0.877 (0.880). The option is kept (default 0).
+
 Inference does not need torch: :func:`export_onnx` writes an ONNX graph that
 :mod:`seedmap.detect.cnn` runs in onnxruntime. Weights/checkpoints are safetensors.
 """
@@ -282,14 +291,20 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
     return X, H, R, M, IG
 
 
-def losses(out, heat, reg, mask, ignore=None, iou_weight: float = 0.0):  # noqa: ANN001, ANN201 - torch tensors
+def losses(out, heat, reg, mask, ignore=None, iou_weight: float = 0.0,  # noqa: ANN001, ANN201 - torch tensors
+           center_weight: float = 0.0):
     """``(total, focal, box L1, offset L1, box 1-GIoU)``.
 
     CenterNet's penalty-reduced focal loss (``ignore`` pixels skipped), masked L1 of the four box
     edges and the keypoint offset, plus ``iou_weight`` x (1 - GIoU) of the box the edges describe:
     on a 5 px seed a 1 px edge error costs half the IoU, which the L1 loss does not know.
+    ``center_weight > 0``: a mask pixel's box/offset terms weigh ``1 + center_weight x heat`` (the
+    Gaussian heat target), so the peak and its 3x3 neighbours, which inference reads, count most.
     """
     import torch
+
+    if center_weight > 0:
+        mask = mask * (1.0 + center_weight * heat)
 
     p = torch.sigmoid(out[:, 0]).clamp(1e-4, 1 - 1e-4)
     pos = (heat >= 0.999).float()
@@ -339,6 +354,8 @@ class CnnTrainConfig:
     seed_fraction: float = 0.75
     #: weight of the box (1 - GIoU) loss next to the L1 edge loss (0 = L1 only, sessions <= 3)
     iou_weight: float = 1.0
+    #: box/offset loss weight of a mask pixel = 1 + box_center_weight x heat target (0 = uniform, session 4)
+    box_center_weight: float = 0.0
     #: fraction of crops rescaled by U(scale_lo, scale_hi) (larger seeds of close-up arm scans)
     scale_prob: float = 0.5
     scale_lo: float = 0.8
@@ -491,7 +508,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     def validate() -> float:
         net.eval()
         with torch.no_grad():
-            v = losses(net(vbatch[0]), *vbatch[1:], iou_weight=cfg.iou_weight)
+            v = losses(net(vbatch[0]), *vbatch[1:], iou_weight=cfg.iou_weight, center_weight=cfg.box_center_weight)
         net.train()
         return [float(a) for a in v]
 
@@ -500,7 +517,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         x, *tg = (torch.from_numpy(np.ascontiguousarray(a))
                   for a in crop_batch(tr, cfg.batch, cfg.crop, rng, cfg.seed_fraction, spec=spec))
         set_lr(step)
-        loss, *_ = losses(net(x), *tg, iou_weight=cfg.iou_weight)
+        loss, *_ = losses(net(x), *tg, iou_weight=cfg.iou_weight, center_weight=cfg.box_center_weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
