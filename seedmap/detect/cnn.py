@@ -18,6 +18,12 @@ vs 85 ms fp32 for the session-3 network); dropping a peak whose keypoint lies in
 box costs recall (F1 0.824-0.852 vs 0.855); a 5x5 peak window (``peak_window``) trades recall for
 precision at about equal F1. Session-4 weights: 8/16 channels (2.2x fewer multiply-adds than
 session 3's 12/24), 46 ms CPU per 1434x1050 image on one thread.
+
+Measured and not adopted (session 5, session-4 weights, validation det_s36 F1 0.898 at threshold 0.45):
+box-IoU non-maximum suppression of the peaks (cv2.dnn.NMSBoxes at IoU 0.3 / 0.4 / 0.5 / 0.6: 0.896 / 0.899 /
+0.900 / 0.899), a constant added to all four predicted edges before rounding (+-0.1 px: 0.897 / 0.887), a
+higher threshold for small predicted boxes (no change: false positives on slivers get whole-seed-sized
+boxes), threshold 0.5 (0.901 on det_s36 but 0.880 vs 0.883 on the second validation range det_s45).
 """
 
 from __future__ import annotations
