@@ -22,6 +22,10 @@ Copies of the summaries of the last reported runs: ``benchmarks/results/bench_re
 classical fast detector); ``..._{gt,fast,fast-classic}_{surface5,merge3,merge3_surface5}.json``: ``--recount`` with
 ``--count-set mv_surface_tol=0.005`` / ``mv_merge_px=3`` / both (``multiview`` only differs; session 3);
 ``..._{gt,fast,fast-classic}_fresh.json``: the fresh panicles 111-115 (session 4).
+Session 5 (scale-aware ``gt`` tolerances, ``CountConfig.mv_scale_ref_px``, tuned on 95-100 and 111-115):
+``..._s5_{heldout,fresh,fresh2}.json`` = ``--recount`` on 100 101-110, 100 111-115 and on the panicles
+116-125 rendered after the freeze (``--eval 100 116 ... 125 --modes seeds`` reconstructs them;
+``_fresh2`` summaries of ``fast`` / ``fast-classic`` cover 116-120).
 """
 
 from __future__ import annotations
