@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -64,15 +65,19 @@ def read_kitti(path: str | Path, timestamps: np.ndarray | None = None) -> Trajec
         empty = not path.read_text().strip()
     except (UnicodeDecodeError, OSError):
         raise InputError("trajectory file is not text", path) from None
-    if empty:
+    a = np.zeros((0, 12))
+    if not empty:
+        try:
+            with warnings.catch_warnings():  # a file of comments only: no data, handled as empty below
+                warnings.simplefilter("ignore", UserWarning)
+                a = np.loadtxt(path, ndmin=2)
+        except ValueError as e:
+            raise InputError(f"not a KITTI pose file ({str(e).splitlines()[0][:100]})", path) from None
+    if a.size == 0:
         if timestamps is not None and len(np.asarray(timestamps).reshape(-1)):
             raise InputError(f"KITTI pose file is empty but {len(np.asarray(timestamps).reshape(-1))} timestamps "
                              "were given", path)
         return Trajectory(np.zeros(0), np.zeros((0, 4, 4)))
-    try:
-        a = np.loadtxt(path, ndmin=2)
-    except ValueError as e:
-        raise InputError(f"not a KITTI pose file ({str(e).splitlines()[0][:100]})", path) from None
     if a.shape[1] != 12:
         raise InputError(f"KITTI rows need 12 numbers, got {a.shape[1]}", path)
     if not np.all(np.isfinite(a)):
