@@ -19,8 +19,11 @@ from seedmap.io.sync import match_stamps
 from seedmap.io.trajectory import read_kitti, read_tum, write_kitti, write_tum
 from seedmap.records import StereoCalib, Trajectory
 
-# SEEDMAP_FUZZ_EXAMPLES=500 for a deeper local search; 40 keeps the file well under a minute on CI
-SETTINGS = settings(max_examples=int(os.environ.get("SEEDMAP_FUZZ_EXAMPLES", "40")), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# SEEDMAP_FUZZ_EXAMPLES=500 for a deeper, random local search. Without it: 40 examples drawn from a fixed seed
+# (derandomize), so the test suite and CI give the same answer on every run; a new random search is opt-in.
+_FUZZ = os.environ.get("SEEDMAP_FUZZ_EXAMPLES")
+SETTINGS = settings(max_examples=int(_FUZZ or "40"), derandomize=_FUZZ is None, deadline=None,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 focal = st.floats(100, 3000)
 baseline = st.floats(0.01, 1.5)
