@@ -283,20 +283,24 @@ def full_res_scale(width: int) -> float:
 # ----------------------------------------------------------------------------------------------
 
 
-def _band_pairs(a: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Every unordered index pair ``{i, j}``, i != j, with ``|a_j - a_i| < eps``, listed once
-    (sort + searchsorted, no N x N)."""
+def _band_pairs(a: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every unordered index pair with ``|a_j - a_i| < eps``, listed once (sort + searchsorted, no
+    N x N): ``(order, i, j)`` with ``order`` the stable argsort of ``a`` and ``i < j`` *positions in
+    that sorted order* (``order[i]``, ``order[j]`` are the original indices), grouped by ``i``.
+    Sorted positions let callers gather from sorted copies (contiguous reads); int32 indices."""
     order = np.argsort(a, kind="stable")
     sa = a[order]
     n = len(sa)
+    it = np.int32 if n < 2**31 - 1 else np.int64
     hi = np.searchsorted(sa, sa + eps, side="left")
     cnt = np.maximum(hi - np.arange(n) - 1, 0)
     total = int(cnt.sum())
     if total == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    ii = np.repeat(np.arange(n), cnt)
-    jj = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt) + ii + 1
-    return order[ii], order[jj]
+        return order, np.zeros(0, it), np.zeros(0, it)
+    # j = i + 1 + (position within i's run), written as one running index minus run starts
+    j = np.arange(1, total + 1, dtype=it)
+    j -= np.repeat((np.cumsum(cnt) - cnt - np.arange(n)).astype(it), cnt)
+    return order, np.repeat(np.arange(n, dtype=it), cnt), j
 
 
 def neighbour_sums(
@@ -318,24 +322,16 @@ def neighbour_sums(
     ok = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(-1)
     # axis 0: horizontal band (|dy| < eps) -> left / right sets; axis 1: vertical -> top / bottom
     for along, band, col in ((0, 1, 0), (1, 0, 2)):
-        # the pairs of _band_pairs, in its order, but indexed in the band-sorted order (contiguous
-        # gathers; the sums are scattered back at the end: same additions in the same order)
-        order = np.argsort(kp[:, band], kind="stable")
-        sb, sa = kp[order, band], kp[order, along]
-        hi = np.searchsorted(sb, sb + eps, side="left")
-        cnt = np.maximum(hi - np.arange(n) - 1, 0)
-        total = int(cnt.sum())
-        if total == 0:
+        # pairs indexed in the band-sorted order (contiguous gathers; the sums are scattered back
+        # at the end)
+        order, i, j = _band_pairs(kp[:, band], eps)
+        if len(i) == 0:
             continue
-        it = np.int32 if n < 2**31 - 1 else np.int64
-        # j = i + 1 + (position within i's run), written as one running index minus run starts
-        j = np.arange(1, total + 1, dtype=it)
-        j -= np.repeat((np.cumsum(cnt) - cnt - np.arange(n)).astype(it), cnt)
+        sb, sa = kp[order, band], kp[order, along]
         d = sa[j]
-        d -= np.repeat(sa, cnt)
+        d -= sa[i]
         keep = np.flatnonzero((d != 0) & (np.abs(d) < delta))
-        i = np.repeat(np.arange(n, dtype=it), cnt)[keep]
-        j, d = j[keep], d[keep]
+        i, j, d = i[keep], j[keep], d[keep]
         dist = np.hypot(d, sb[j] - sb[i])
         # of each pair, ``first`` lies before (left of / above) ``second``: first is in second's
         # left/top set, second in first's right/bottom set
