@@ -1,4 +1,5 @@
-"""Dense stereo disparity as the prior of the semantic stereo association (``stereo_prior="sgbm"``).
+"""Dense stereo disparity as the prior of the semantic stereo association (``stereo_prior="sgbm"``),
+and the image-patch descriptors (NCC) that verify stereo and temporal matches.
 
 Why: seeds have no distinctive appearance, but the *image* around a seed (its neighbours, the
 panicle's silhouette, the shading of the flash) is the same in the two rectified views, so a dense
@@ -74,3 +75,41 @@ def disparity_at(disp: np.ndarray, kp: np.ndarray, radius: int = 1) -> np.ndarra
     out[cnt == 0] = np.nan
     return out
 
+
+
+def patch_descriptors(image: np.ndarray, kp: np.ndarray, size: int) -> np.ndarray:
+    """Zero-mean, unit-norm grey patches ``(N, size * size)`` float32 centred on the keypoints ``kp``
+    (N, 2; u, v image px, sub-pixel, bilinear interpolation; borders reflected).
+
+    Why: a seed itself looks like its neighbours, but a patch a few seed spacings wide also holds
+    the neighbours' arrangement and the panicle's shading, which are the same in the two rectified
+    views and in consecutive frames; the dot product of two descriptors is their normalised
+    cross-correlation (NCC, -1..1). One ``cv2.remap`` call for all keypoints (no loop); a constant
+    patch gives the zero vector (NCC 0 with everything)."""
+    import cv2
+
+    kp = np.asarray(kp, np.float64).reshape(-1, 2)
+    size = max(1, int(size))
+    if len(kp) == 0:
+        return np.zeros((0, size * size), np.float32)
+    a = np.asarray(image)
+    if a.ndim == 3:
+        a = cv2.cvtColor(np.ascontiguousarray(a[..., :3]).astype(np.uint8, copy=False), cv2.COLOR_RGB2GRAY)
+    r = np.arange(size, dtype=np.float64) - (size - 1) / 2.0
+    dx, dy = np.meshgrid(r, r)
+    mx = (kp[:, :1] + dx.reshape(1, -1)).astype(np.float32)
+    my = (kp[:, 1:2] + dy.reshape(1, -1)).astype(np.float32)
+    out = cv2.remap(np.ascontiguousarray(a), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    out = out.reshape(len(kp), -1).astype(np.float32)
+    out -= out.mean(1, keepdims=True)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    out /= np.where(norm > 1e-6, norm, 1.0)
+    return out
+
+
+def patch_ncc(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """NCC of the descriptor pairs ``(desc_a[ia[k]], desc_b[ib[k]])`` (K,), see :func:`patch_descriptors`."""
+    ia, ib = np.asarray(ia, np.int64), np.asarray(ib, np.int64)
+    if len(ia) == 0:
+        return np.zeros(0)
+    return np.einsum("ij,ij->i", desc_a[ia], desc_b[ib]).astype(np.float64)

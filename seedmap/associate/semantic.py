@@ -271,6 +271,28 @@ class SemanticConfig(ConfigModel):
     #: assignment's pairs (SGBM's disparity is biased by ~0.2 px against the keypoint centres, and a
     #: biased prior favours pairs whose keypoint disparity errs the same way)
     prior_debias: bool = False
+    # session 6: scored prior matching and appearance (NCC) verification (see the module docstring)
+    #: how candidates of the dense-stereo prior are scored: "residual" (session 4: paper cost +
+    #: field_weight x residual^2, ratio test on the residual) or "learned" (a logistic score of
+    #: several cues, :func:`scored_prior_assign`; needs the images, i.e. SeedMatcher.features)
+    prior_score: Literal["residual", "learned"] = "residual"
+    #: weights of the learned score's cues (u residual^2, v residual^2 in units of prior_sigma_px,
+    #: 1 - NCC, |disparity - local median of the prior| / 10 full-res px, (paper neighbour-ratio
+    #: cost - 4 r) / 40 clipped at 5) and the intercept: the log-odds that a candidate is the true
+    #: partner; fitted by logistic regression on the gt-oracle candidates of the tuning ranges
+    #: (seeds 3 and 11, 1434 px)
+    score_weights: tuple[float, float, float, float, float, float] = (-0.181, -0.39, -1.021, -1.434, -0.099, 4.891)
+    #: candidate window of the learned score (normalised residual, units of prior_sigma_px)
+    score_gate_sigma: float = Field(6.0, gt=0)
+    #: a pair is kept when its log-odds is at least this ...
+    score_min_logit: float = 1.5
+    #: ... and exceeds every competitor's sharing one of its keypoints by this much
+    score_margin: float = Field(1.0, ge=0)
+    #: side of the NCC patches (full-res px; 31.4 = 11 px at 1434 px), rounded to an odd image size
+    patch_px: float = Field(31.4, gt=0)
+    #: temporal verification: drop temporal pairs whose patch NCC is below this (-1 = off; needs
+    #: the images, i.e. SeedMatcher.features)
+    temporal_min_ncc: float = Field(-1.0, ge=-1.0, le=1.0)
 
 
 def full_res_scale(width: int) -> float:
@@ -758,6 +780,73 @@ def prior_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray,
     return _assign_in_prior(fa, fb, sa, sb, ia[ok], ib[ok], res[ok], n, m, cfg, cfg.prior_ratio)
 
 
+def score_features(ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndarray, pred: np.ndarray,
+                   sig: np.ndarray, local_pred: np.ndarray, ncc: np.ndarray, sa: np.ndarray, sb: np.ndarray,
+                   cfg: SemanticConfig, scale: float) -> np.ndarray:
+    """``(K, 5)`` cues of the candidate pairs ``(ka[ia], kb[ib])`` for :func:`scored_prior_assign`:
+    squared u and v residuals from the prior ``pred`` (N, 2; image px) in units of ``sig`` (N, 2),
+    ``1 - ncc``, the u distance of the candidate displacement from ``local_pred`` (N, 2; the prior
+    smoothed over the neighbours) in tens of full-res px (clipped at 4; a seed whose displacement
+    disagrees with both its own prior and its neighbours' is rarely right), and the paper's
+    neighbour-ratio cost above its floor of 4 r, in units of 40 and clipped at 5."""
+    r = (kb[ib] - ka[ia] - pred[ia]) / sig[ia]
+    dev = np.abs(kb[ib, 0] - ka[ia, 0] - local_pred[ia, 0]) * scale
+    pc = structure_cost(sa[ia], sb[ib], cfg.r, cfg.ratio_eps, cfg.impossible_cost) - 4.0 * cfg.r
+    return np.c_[r[:, 0] ** 2, r[:, 1] ** 2, 1.0 - np.asarray(ncc, np.float64), np.minimum(dev, 40.0) / 10.0,
+                 np.minimum(pc, 200.0) / 40.0]
+
+
+def scored_prior_assign(ka: np.ndarray, kb: np.ndarray, sa: np.ndarray, sb: np.ndarray, gate, pred: np.ndarray,
+                        sig: np.ndarray, desc_a: np.ndarray, desc_b: np.ndarray, cfg: SemanticConfig,
+                        scale: float) -> Matches:
+    """Association around a per-keypoint displacement prior ``pred`` (N, 2; image px, e.g. the dense
+    stereo disparity ``(-D, 0)``) scored by several cues at once (``prior_score="learned"``).
+
+    Why (session 6): with the residual from the prior alone, 7 % of the true stereo pairs were lost
+    to the ratio test and 2 % of the output was wrong (slam_r1, gt oracle): a seed's neighbours lie
+    ~3 px away, and the prior is off by more than that for seeds on a depth edge. Other cues
+    separate them: the patch NCC (image appearance, ``desc_a``/``desc_b`` from
+    :func:`seedmap.associate.disparity.patch_descriptors`), the v residual (rectified rows), the
+    candidate's disagreement with its neighbours' prior and the paper's neighbour cost. Their
+    weighted sum (``score_weights``, a logistic regression fitted on the tuning ranges) is the
+    log-odds ``t`` that a candidate is the true partner. Candidates within ``score_gate_sigma``
+    normalised residuals (wider than the residual method's gate: the score, not the window, decides)
+    are assigned one-to-one minimising ``-t`` (:func:`assign_capped`, a keypoint may stay unmatched,
+    a pair needs ``t >= score_min_logit``), and a pair is kept only when its ``t`` beats every
+    competitor sharing one of its keypoints by ``score_margin`` (ambiguity test)."""
+    n, m = len(ka), len(kb)
+    if n == 0 or m == 0:
+        return Matches()
+    sig = np.broadcast_to(np.asarray(sig, np.float64), (n, 2))
+    gs = cfg.score_gate_sigma
+    ia, ib = box_pairs(ka + pred, kb, gs * sig.max(0))
+    ok = gate(ia, ib)
+    ia, ib = ia[ok], ib[ok]
+    r = (kb[ib] - ka[ia] - pred[ia]) / sig[ia]
+    ok = np.hypot(r[:, 0], r[:, 1]) <= gs
+    ia, ib = ia[ok], ib[ok]
+    if len(ia) == 0:
+        return Matches()
+    local_pred = field_at(ka, pred, ka, cfg.field_k) if n >= 3 else pred
+    from seedmap.associate.disparity import patch_ncc
+
+    x = score_features(ka, kb, ia, ib, pred, sig, local_pred, patch_ncc(desc_a, desc_b, ia, ib), sa, sb, cfg, scale)
+    w = np.asarray(cfg.score_weights, np.float64)
+    t = x @ w[:-1] + w[-1]
+    # costs must be positive for the matching: offset by the largest possible log-odds
+    top = float(max(t.max(), cfg.score_min_logit)) + 1.0
+    cost = top - t
+    out = assign_capped(n, m, ia, ib, cost, top - cfg.score_min_logit + 1e-9)
+    if len(out) == 0:
+        return out
+    key = ia * m + ib
+    order = np.argsort(key)
+    pos = order[np.searchsorted(key[order], out.idx_a * m + out.idx_b)]
+    alt = second_best(ia, ib, cost, out, n, m)
+    keep = cost[pos] + cfg.score_margin < alt
+    return Matches(out.idx_a[keep], out.idx_b[keep], out.cost[keep])
+
+
 def _field_candidates(ka: np.ndarray, kb: np.ndarray, pred: np.ndarray, sig: np.ndarray, gate,
                       gate_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gated candidate pairs within ``gate_sigma`` normalised residual of the predicted field and
@@ -811,7 +900,7 @@ def match_stereo_keypoints(
     kp_left: np.ndarray, kp_right: np.ndarray, width: int, gates: GateConfig | None = None,
     cfg: SemanticConfig | None = None, sums: tuple[np.ndarray, np.ndarray] | None = None,
     init_field: np.ndarray | None = None, iters: int | None = None, disparity: np.ndarray | None = None,
-    disparity_right: np.ndarray | None = None,
+    disparity_right: np.ndarray | None = None, appearance: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Matches:
     """Left<->right association of one rectified stereo pair (pixels of an image ``width`` wide).
 
@@ -823,7 +912,11 @@ def match_stereo_keypoints(
     method; keypoints without a disparity take the median of their ``field_k`` nearest keypoints'
     with the wider ``field_stereo_sigma_px``. ``disparity_right`` (M,): the right image's dense
     disparity at every right keypoint (NaN = unknown): with ``sgbm_lr_tol_px > 0`` a pair is
-    dropped when ``u_right + D_right`` is farther than that from ``u_left`` (left-right check)."""
+    dropped when ``u_right + D_right`` is farther than that from ``u_left`` (left-right check).
+    ``appearance``: patch descriptors (left, right) of every keypoint
+    (:func:`seedmap.associate.disparity.patch_descriptors`); with ``prior_score="learned"`` and a
+    ``disparity`` the pairs are scored by :func:`scored_prior_assign` instead of
+    :func:`prior_assign`."""
     cfg = cfg or SemanticConfig()
     g = (gates or GateConfig()).scaled(width)
     kl = np.asarray(kp_left, np.float64).reshape(-1, 2)
@@ -844,8 +937,12 @@ def match_stereo_keypoints(
             sig = np.where(known[:, None], np.asarray(cfg.prior_sigma_px, np.float64) / s,
                            np.asarray(cfg.field_stereo_sigma_px, np.float64) / s)
             pred = np.c_[-d, np.zeros(len(d))]
-            m = prior_assign(kl, kr, fl, fr, sa, sb, _stereo_gate_fn(kl, kr, g, width), pred, sig, cfg)
-            if cfg.prior_debias and len(m) >= 10:
+            if cfg.prior_score == "learned" and appearance is not None:
+                m = scored_prior_assign(kl, kr, sa, sb, _stereo_gate_fn(kl, kr, g, width), pred, sig, appearance[0],
+                                        appearance[1], cfg, s)
+            else:
+                m = prior_assign(kl, kr, fl, fr, sa, sb, _stereo_gate_fn(kl, kr, g, width), pred, sig, cfg)
+            if cfg.prior_debias and len(m) >= 10 and not (cfg.prior_score == "learned" and appearance is not None):
                 pred[:, 0] += np.median(kr[m.idx_b, 0] - kl[m.idx_a, 0] - pred[m.idx_a, 0])
                 m = prior_assign(kl, kr, fl, fr, sa, sb, _stereo_gate_fn(kl, kr, g, width), pred, sig, cfg)
             if disparity_right is not None and cfg.sgbm_lr_tol_px > 0 and len(m):
@@ -1354,6 +1451,8 @@ class SeedMatcher:
         self._prev_flow: tuple[np.ndarray, np.ndarray] | None = None
         #: stereo_prior="sgbm": (frame index, disparities of its stereo matches) for the next search range
         self._disp_known: tuple[int, np.ndarray] | None = None
+        #: patch descriptors of the last two frames' left keypoints (temporal NCC verification)
+        self._patches: list[tuple[np.ndarray, np.ndarray]] = []
 
     def _cached_sums(self, kp: np.ndarray) -> np.ndarray:
         for arr, sums in self._sums:
@@ -1373,11 +1472,14 @@ class SeedMatcher:
         return self._prev if index > self._prev.index else None
 
     def features_from_detections(self, det: StereoDetections, disparity: np.ndarray | None = None,
-                                 disparity_right: np.ndarray | None = None) -> FrameFeatures:
+                                 disparity_right: np.ndarray | None = None,
+                                 appearance: tuple[np.ndarray, np.ndarray] | None = None) -> FrameFeatures:
         """Stereo matches of one frame's detections. ``disparity``: dense-stereo disparity of every
         left keypoint (image px, NaN = unknown), the prior of ``stereo_prior="sgbm"`` (computed by
         :meth:`features` from the images); without it the ``refine`` method is used.
-        ``disparity_right``: the right image's at every right keypoint (``sgbm_lr_tol_px``)."""
+        ``disparity_right``: the right image's at every right keypoint (``sgbm_lr_tol_px``).
+        ``appearance``: patch descriptors (left, right) of the keypoints (``prior_score="learned"``,
+        ``temporal_min_ncc``; :func:`seedmap.associate.disparity.patch_descriptors`)."""
         t0, c0 = time.perf_counter(), time.process_time()
         kl = np.asarray(det.left.keypoints, np.float64).reshape(-1, 2)
         kr = np.asarray(det.right.keypoints, np.float64).reshape(-1, 2)
@@ -1389,7 +1491,7 @@ class SeedMatcher:
         step = None
         if prev is None:
             m = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg, sums=sums, disparity=disparity,
-                                       disparity_right=disparity_right)
+                                       disparity_right=disparity_right, appearance=appearance)
             if self.cfg.stereo_carry:  # a new sequence: no constant-velocity prediction from the old one
                 self._last_shift = self._last_shift_v = None
         else:
@@ -1409,6 +1511,8 @@ class SeedMatcher:
             seed_ids_left=det.left.seed_ids, seed_ids_right=det.right.seed_ids, timings_ms=timings,
         )
         self._remember(f.kp_left, sums[0])
+        if appearance is not None:
+            self._patches = [*self._patches[-1:], (f.kp_left, appearance[0])]
         if self.cfg.stereo_carry:
             self._prev, self._prev_sums_right = f, sums[1]
             self._prev_track = None if step is None else step.track
@@ -1429,7 +1533,17 @@ class SeedMatcher:
         disp, disp_r, t_prior = None, None, {}
         if self.cfg.stereo_prior == "sgbm" and self._carry_from(det.index) is None:
             disp, disp_r, t_prior = self._dense_prior(frame, det)
-        f = self.features_from_detections(det, disparity=disp, disparity_right=disp_r)
+        app = None
+        if self._needs_appearance():
+            from seedmap.associate.disparity import patch_descriptors
+
+            c0, t0 = time.process_time(), time.perf_counter()
+            size = self._patch_size()
+            app = (patch_descriptors(frame.left, det.left.keypoints, size),
+                   patch_descriptors(frame.right, det.right.keypoints, size))
+            t_prior["appearance_cpu"] = (time.process_time() - c0) * 1e3
+            t_prior["appearance"] = (time.perf_counter() - t0) * 1e3
+        f = self.features_from_detections(det, disparity=disp, disparity_right=disp_r, appearance=app)
         for k, v in t_prior.items():  # the prior is part of the stereo association's cost
             f.timings_ms[k] = v
             if k.endswith("_cpu"):
@@ -1441,6 +1555,22 @@ class SeedMatcher:
             m = f.stereo
             self._disp_known = (det.index, f.kp_left[m.idx_a, 0] - f.kp_right[m.idx_b, 0])
         return f
+
+    def _needs_appearance(self) -> bool:
+        """Whether patch descriptors are used (learned stereo score or temporal NCC verification)."""
+        c = self.cfg
+        return (c.stereo_prior == "sgbm" and c.prior_score == "learned") or c.temporal_min_ncc > -1.0
+
+    def _patch_size(self) -> int:
+        """Side of the NCC patches in image px: ``patch_px`` scaled to the image width, odd, >= 3."""
+        k = int(round(self.cfg.patch_px / full_res_scale(self.calib.width)))
+        return max(3, k + 1 - k % 2)
+
+    def _cached_patches(self, kp: np.ndarray) -> np.ndarray | None:
+        for arr, desc in self._patches:
+            if arr is kp:
+                return desc
+        return None
 
     def _dense_prior(self, frame: StereoFrame,
                      det: StereoDetections) -> tuple[np.ndarray | None, np.ndarray | None, dict[str, float]]:
@@ -1493,6 +1623,13 @@ class SeedMatcher:
         sums = (self._cached_sums(prev.kp_left), self._cached_sums(cur.kp_left))
         m = match_temporal_keypoints(prev.kp_left, cur.kp_left, self.calib.width, self.gates, self.cfg, pred,
                                      pred_v, sums=sums)
+        if self.cfg.temporal_min_ncc > -1.0 and len(m):
+            da, db = self._cached_patches(prev.kp_left), self._cached_patches(cur.kp_left)
+            if da is not None and db is not None:
+                from seedmap.associate.disparity import patch_ncc
+
+                keep = patch_ncc(da, db, m.idx_a, m.idx_b) >= self.cfg.temporal_min_ncc
+                m = Matches(m.idx_a[keep], m.idx_b[keep], m.cost[keep])
         self._update_shift(prev.kp_left, cur.kp_left, m)
         return m
 
@@ -1507,3 +1644,4 @@ class SeedMatcher:
         self._prev_candidates = Matches()
         self._prev_flow = None
         self._disp_known = None
+        self._patches = []
