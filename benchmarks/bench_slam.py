@@ -8,7 +8,9 @@ Writes benchmarks/results/bench_slam.json:
   ``stereo_carry``; its stereo time contains the temporal matching of both images, measured with
   two frames of history) and the dense-stereo prior (``sgbm`` = field + ``stereo_prior="sgbm"``;
   its stereo time contains the SGBM run on the drawn stereo pair, the search range coming from the
-  previous frame), on synthetic panicles at the default 1434 px width;
+  previous frame) and its session-6 variant (``learned`` = sgbm + ``prior_score="learned"`` +
+  ``temporal_min_ncc=0.3``: the patch descriptors of both images are part of its stereo time, the
+  temporal NCC check of its temporal time), on synthetic panicles at the default 1434 px width;
 * frames/s of association + motion + back-end (iSAM2) per frame on a short synthetic sequence;
 * the baseline measured in the same run: one SIFT detection + brute-force kNN match (cv2) of the
   same stereo pair (seeds drawn as blobs); results are reported as ratios to it.
@@ -122,15 +124,19 @@ def main() -> None:
     t_sift, c_sift = _time2(sift_match, reps)
     res = {"machine": platform.processor() or platform.machine(), "image": [calib.width, calib.height],
            "baseline_sift_bf_stereo_s": t_sift, "baseline_sift_bf_stereo_cpu_s": c_sift, "association": []}
-    for mode in ("none", "consensus", "field", "loop", "sgbm"):
+    for mode in ("none", "consensus", "field", "loop", "sgbm", "learned"):
         loop = mode == "loop"
-        cfg = SemanticConfig(refine="field" if mode in ("loop", "sgbm") else mode, temporal_prediction=mode != "none",
-                             stereo_carry=loop, stereo_prior="sgbm" if mode == "sgbm" else "none")
+        dense = mode in ("sgbm", "learned")
+        cfg = SemanticConfig(refine="field" if mode in ("loop", "sgbm", "learned") else mode,
+                             temporal_prediction=mode != "none", stereo_carry=loop,
+                             stereo_prior="sgbm" if dense else "none",
+                             prior_score="learned" if mode == "learned" else "residual",
+                             temporal_min_ncc=0.3 if mode == "learned" else -1.0)
         for n in (500, 1000, 2000):
             a, b = _subsample(d0, n, np.random.default_rng(n)), _subsample(d1, n, np.random.default_rng(n + 1))
             pre = _subsample(dm1, n, np.random.default_rng(n + 2))
             m = SeedMatcher(calib, detector=_Fixed([a, b]), cfg=cfg)
-            if mode == "sgbm":
+            if dense:
                 frames = {d.index: StereoFrame(d.index, d.timestamp,
                                                *(_blob_image(k.keypoints, calib.width, calib.height, rng)
                                                  for k in (d.left, d.right))) for d in (a, b)}

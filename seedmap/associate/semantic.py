@@ -151,6 +151,21 @@ oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stay
   field's; not the SLAM default because the SLAM trajectory drifts more with it (see
   ``SlamAssociationConfig``). With the stereo-temporal loop it only serves the first frame.
 
+* ``prior_score="learned"`` (session 6, with ``stereo_prior="sgbm"``; :func:`scored_prior_assign`):
+  the candidates around ``(u - D, v)`` are scored by a logistic model of five cues instead of the
+  residual alone: u and v residual from the SGBM prior, the NCC of 11 x 11 px grey patches around
+  the two keypoints (:func:`seedmap.associate.disparity.patch_descriptors`), the candidate's
+  disagreement with the prior smoothed over its ``field_k`` nearest keypoints, and the paper's
+  neighbour-ratio cost; weights ``score_weights`` fitted on the gt-oracle candidates of the tuning
+  ranges (seeds 3 and 11). Assignment on ``-log-odds`` with a minimum log-odds and a log-odds margin
+  over every competitor (ambiguity test). Why: the session-5/6 breakdown of the sgbm path (slam_r1,
+  gt oracle, 40,936 gated true pairs) lost 5.6 % outside the prior's gate (SGBM off by > 2.45 px at
+  a depth edge) and 6.8 % to the residual ratio test, and 2 % of its output was wrong (43 % of those
+  because the partner is a sliver the oracle does not emit); the extra cues resolve most of the
+  ratio-test ties and the wider window (``score_gate_sigma``) recovers part of the gate losses.
+* ``temporal_min_ncc`` (session 6): temporal pairs whose patch NCC is below the threshold are
+  dropped (same camera, ~1 cm apart: a true pair's patches are nearly the same, 95 % above 0.58).
+
 The SLAM pipeline (``seedmap.slam.config.SlamAssociationConfig``) uses ``refine="field"`` and the
 constant-velocity prediction by default (``stereo_carry`` off, ``stereo_prior="none"``).
 """
@@ -1479,7 +1494,8 @@ class SeedMatcher:
         :meth:`features` from the images); without it the ``refine`` method is used.
         ``disparity_right``: the right image's at every right keypoint (``sgbm_lr_tol_px``).
         ``appearance``: patch descriptors (left, right) of the keypoints (``prior_score="learned"``,
-        ``temporal_min_ncc``; :func:`seedmap.associate.disparity.patch_descriptors`)."""
+        ``temporal_min_ncc``; :func:`seedmap.associate.disparity.patch_descriptors`); the right ones
+        may be None (temporal verification only)."""
         t0, c0 = time.perf_counter(), time.process_time()
         kl = np.asarray(det.left.keypoints, np.float64).reshape(-1, 2)
         kr = np.asarray(det.right.keypoints, np.float64).reshape(-1, 2)
@@ -1490,8 +1506,9 @@ class SeedMatcher:
         timings: dict[str, float] = {}
         step = None
         if prev is None:
+            both = appearance is not None and appearance[1] is not None
             m = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg, sums=sums, disparity=disparity,
-                                       disparity_right=disparity_right, appearance=appearance)
+                                       disparity_right=disparity_right, appearance=appearance if both else None)
             if self.cfg.stereo_carry:  # a new sequence: no constant-velocity prediction from the old one
                 self._last_shift = self._last_shift_v = None
         else:
@@ -1539,8 +1556,9 @@ class SeedMatcher:
 
             c0, t0 = time.process_time(), time.perf_counter()
             size = self._patch_size()
+            scored = self.cfg.stereo_prior == "sgbm" and self.cfg.prior_score == "learned"
             app = (patch_descriptors(frame.left, det.left.keypoints, size),
-                   patch_descriptors(frame.right, det.right.keypoints, size))
+                   patch_descriptors(frame.right, det.right.keypoints, size) if scored else None)
             t_prior["appearance_cpu"] = (time.process_time() - c0) * 1e3
             t_prior["appearance"] = (time.perf_counter() - t0) * 1e3
         f = self.features_from_detections(det, disparity=disp, disparity_right=disp_r, appearance=app)
