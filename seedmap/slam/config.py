@@ -104,6 +104,11 @@ class SlamAssociationConfig(SemanticConfig):
     Not explained: neither dropping pairs whose disparity disagrees with their neighbours'
     (``prior_max_dev_px``) nor re-centring SGBM on the keypoints (``prior_debias``) removed the
     1 m range's start-of-range drift with the fast detector.
+    ``--set association.prior_score=learned`` (session 6, with the sgbm prior) scores the stereo
+    candidates by a logistic log-odds (prior residuals, patch NCC, neighbour-prior disagreement,
+    the paper's cost) and ``--set association.temporal_min_ncc=0.3`` drops temporal pairs whose
+    patches disagree: stereo precision >= 0.99 on two of four ranges, but not the default because
+    the trajectories are not better everywhere (README, "Session 6: a learned candidate score").
 
     ``--set association.stereo_carry=true`` adds the stereo-temporal loop (stereo carried through
     the left and right temporal matches, parallax test, loop check of the temporal matches): much
