@@ -274,6 +274,13 @@ def train_fast_cnn_cmd(
     box_center_weight: float = typer.Option(0.0, "--box-center-weight",
                                             help="Box/offset loss weight of a seed pixel = 1 + this x its heat "
                                                  "target (0 = every mask pixel alike)."),
+    arm_fraction: Optional[float] = typer.Option(None, "--arm-fraction",
+                                                 help="Fraction of the crops from arm-scan datasets (seedmap "
+                                                      "simulate panicle) when ranges are given too (default: "
+                                                      "every image alike)."),
+    init: Optional[Path] = typer.Option(None, "--init", help="Start from these fast_cnn .onnx weights "
+                                                              "(fine-tuning) instead of a random initialisation."),
+    lr: float = typer.Option(2e-3, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
@@ -291,7 +298,8 @@ def train_fast_cnn_cmd(
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
                          iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
-                         box_center_weight=box_center_weight)
+                         box_center_weight=box_center_weight, arm_fraction=arm_fraction, lr=lr,
+                         init_weights=str(init) if init else None)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "

@@ -122,3 +122,22 @@ def test_center_weight_makes_errors_at_the_peak_cost_more_than_at_the_rim():
 
     assert box_l1(py, px, 0.0) == pytest.approx(box_l1(ry, rx, 0.0))  # uniform: every pixel alike
     assert box_l1(py, px, 4.0) > 2.0 * box_l1(ry, rx, 4.0)
+
+
+def test_arm_fraction_sets_the_share_of_arm_scan_crops():
+    """``image_weights``: with 1 arm-scan image among 4 field images, arm_fraction 0.5 draws half the crops
+    from it (uniform sampling would draw a fifth); one kind only or None: uniform (None)."""
+    from seedmap.detect.train_cnn import image_weights
+
+    ims = [_one_seed_image() for _ in range(5)]
+    ims[3].arm = True
+    ims[3].rgb = ims[3].rgb.copy()
+    ims[3].rgb[ims[3].inst >= 0] = 100  # tell its crops apart by the seed's brightness
+    w = image_weights(ims, 0.5)
+    assert np.isclose(w.sum(), 1.0) and np.isclose(w[3], 0.5) and np.allclose(w[[0, 1, 2, 4]], 0.125)
+    assert image_weights(ims, None) is None and image_weights(ims[:3], 0.5) is None
+    X, *_ = crop_batch(ims, 400, 48, np.random.default_rng(0), seed_fraction=1.0, augment=False, weights=w)
+    arm = np.isclose(X.max(axis=(1, 2, 3)), 100 / 255)
+    assert 0.42 < arm.mean() < 0.58
+    X, *_ = crop_batch(ims, 400, 48, np.random.default_rng(0), seed_fraction=1.0, augment=False)
+    assert np.isclose(X.max(axis=(1, 2, 3)), 100 / 255).mean() < 0.3

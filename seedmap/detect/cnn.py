@@ -12,6 +12,17 @@ response above ``gate_response``. Peaks: 3x3 max-pool non-maximum suppression of
 ``threshold``. Box = peak pixel +- the rounded predicted edge distances (x0, y0 inclusive, x1, y1
 exclusive); keypoint = peak pixel + predicted offset; ellipse = axis-aligned, inscribed in the box.
 
+Arm scans (session 6): close-up panicle views show seeds ~2x the area of the row-range seeds (~33 vs ~17 px),
+white ones flash-saturated (61 % of their pixels at 255 on panicle 140: neighbouring seeds merge into one white
+blob). The field network puts >= 2 keypoints on ~43 % of such seeds. Two remedies, measured on the validation
+panicles 140-141 (left images, GT >= 12 px; box F1 / seeds with exactly one keypoint / with >= 2):
+field network 0.41 / 0.37 / 0.43; ``cnn.scale`` 0.8 (the image resized so the seeds are nearer the training
+size, outputs mapped back) 0.54 / 0.55 / 0.16; a network trained on ranges + arm scans (``cnn.domain=arm``,
+``fast_cnn_arm.onnx``) 0.62 / 0.56 / 0.12 (at threshold 0.35, which the reconstruction uses: 0.55 / 0.50 /
+0.30, more recall for the counter to de-duplicate). The arm network costs 0.014 F1 on the row ranges (validation
+det_s36 0.884 vs 0.898), so ``fast`` keeps the field network by default and the panicle reconstruction asks
+for the arm one (ReconConfig.detector_overrides).
+
 Measured and not adopted (session 4, det_s36): onnxruntime int8 static quantization (QDQ or
 QOperator, calibrated on training tiles) is *slower* on this AVX2 CPU at 8-24 channels (92 / 105 ms
 vs 85 ms fp32 for the session-3 network); dropping a peak whose keypoint lies in a stronger peak's
@@ -40,10 +51,13 @@ from seedmap.errors import ConfigError, InputError
 from seedmap.records import Detections, StereoDetections, StereoFrame
 
 
-def default_cnn_path() -> Path:
-    """The shipped network (trained on the simulated ranges of seeds 1 and 31-35, held-out seed 36;
-    command and numbers in :mod:`seedmap.detect.train_cnn`)."""
-    return Path(__file__).with_name("weights") / "fast_cnn.onnx"
+def default_cnn_path(domain: str = "field") -> Path:
+    """The shipped network of ``domain`` (``cnn.domain``): ``field`` = trained on the simulated ranges of seeds 1
+    and 31-35, held-out seed 36; ``arm`` = trained on those ranges and the arm scans of panicles 130-139
+    (session 6; commands and numbers in :mod:`seedmap.detect.train_cnn`)."""
+    if domain not in ("field", "arm"):
+        raise ConfigError(f"cnn.domain must be field or arm, got {domain!r}")
+    return Path(__file__).with_name("weights") / ("fast_cnn.onnx" if domain == "field" else "fast_cnn_arm.onnx")
 
 
 def load_session(path: str | Path, threads: int = 0):  # noqa: ANN201 - onnxruntime.InferenceSession
@@ -158,7 +172,7 @@ class CnnDetector(Detector):
         if self.cfg.tile and (self.cfg.tile % 2 or self.cfg.margin % 2):
             raise ConfigError(f"cnn.tile ({self.cfg.tile}) and cnn.margin ({self.cfg.margin}) must be even "
                               "(the network halves the resolution)")
-        self.path = Path(weights or self.cfg.weights or default_cnn_path())
+        self.path = Path(weights or self.cfg.weights or default_cnn_path(self.cfg.domain))
         self.sess = load_session(self.path, self.cfg.threads)
         meta = self.sess.get_modelmeta().custom_metadata_map
         self.info = json.loads(meta.get("info", "{}"))
@@ -182,10 +196,34 @@ class CnnDetector(Detector):
         return self.sess.run(None, {"image": x})[0]
 
     def detect(self, image: np.ndarray) -> Detections:
-        """Seeds in one RGB image: boxes, sigmoid scores, keypoints (ellipse centres)."""
+        """Seeds in one RGB image: boxes, sigmoid scores, keypoints (ellipse centres).
+
+        With ``cnn.scale`` != 1 the network runs on the image resized by that factor (seeds
+        larger than the training seeds are brought to the training size) and the boxes, keypoints
+        and ellipse axes are mapped back to the input's pixels."""
+        img = check_image(image)
+        s = float(self.cfg.scale)
+        if s == 1.0:
+            return self._detect(img)
+        h, w = img.shape[:2]
+        ws, hs = max(1, int(round(w * s))), max(1, int(round(h * s)))
+        small = cv2.resize(img, (ws, hs), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+        d = self._detect(small)
+        if len(d) == 0:
+            return d
+        sx, sy = ws / w, hs / h
+        ell = d.ellipses.copy()
+        # pixel-centre convention: u_full = (u_small + 0.5) / s - 0.5; box edges are pixel edges
+        ell[:, 0] = (ell[:, 0] + 0.5) / sx - 0.5
+        ell[:, 1] = (ell[:, 1] + 0.5) / sy - 0.5
+        ell[:, 2:4] /= s
+        boxes = d.boxes / np.array([sx, sy, sx, sy])
+        return Detections(boxes=boxes, scores=d.scores, ellipses=ell)
+
+    def _detect(self, img: np.ndarray) -> Detections:
+        """The network's detections in ``img`` at its own resolution."""
         from seedmap.detect.fast import seediness
 
-        img = check_image(image)
         h, w = img.shape[:2]
         c = self.cfg
         parts = []

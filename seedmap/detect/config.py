@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import Literal, Sequence
 
+from pydantic import Field
+
 from seedmap.io.options import DatasetOptions
 from seedmap.config import ConfigModel, apply_overrides
 
@@ -92,8 +94,12 @@ class CnnConfig(ConfigModel):
     (8 images): 24 % of the image area (margins included) holds 99.5 % of the GT seeds >= 6 px.
     """
 
-    #: ONNX weights; None = the shipped seedmap/detect/weights/fast_cnn.onnx
+    #: ONNX weights; None = the shipped network of ``domain``
     weights: str | None = None
+    #: which shipped network ``weights = None`` means: ``field`` = seedmap/detect/weights/fast_cnn.onnx (trained on
+    #: simulated row ranges), ``arm`` = fast_cnn_arm.onnx (trained on ranges + close-up arm scans of panicles,
+    #: whose flash-lit seeds are ~2x larger and often saturated; the panicle reconstruction sets it)
+    domain: Literal["field", "arm"] = "field"
     #: keep heatmap peaks with seed probability at least this (chosen on det_s36: F1 0.883 at 0.45,
     #: 0.884 at 0.5, 0.879 at 0.4; session-4 weights)
     threshold: float = 0.45
@@ -113,6 +119,9 @@ class CnnConfig(ConfigModel):
     smooth: float = 4.0
     #: peak test: heat logit maximal over the 3x3 square (3) or the 5x5 disk (5)
     peak_window: int = 3
+    #: run the network on the image resized by this factor (seeds larger than the ~5 px training seeds,
+    #: e.g. close-up arm scans, brought to the training size); outputs mapped back to input pixels
+    scale: float = Field(1.0, gt=0, le=4)
     #: tiles per onnxruntime call
     batch: int = 32
     #: onnxruntime intra-op threads (0 = onnxruntime's default: all cores, which spin-wait and cost

@@ -218,7 +218,7 @@ def fast_alias(config=None) -> str:
         from seedmap.detect.cnn import default_cnn_path
 
         cc = config.cnn if config is not None else None
-        if (cc is not None and cc.weights) or default_cnn_path().is_file():
+        if (cc is not None and cc.weights) or default_cnn_path(cc.domain if cc is not None else "field").is_file():
             return "fast-cnn"
     return "fast-classic"
 

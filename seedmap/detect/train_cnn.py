@@ -39,6 +39,15 @@ weight 0.899 / 0.888 with the keypoint median 0.31 -> 0.29 px / 0.36 -> 0.34 px.
 frozen centre-weighted network was no better: F1 det_s2 0.861 (session 4: 0.871), det_s21 0.889 (0.888),
 det_s2_new 0.891 (0.892), det_s22 0.810 (0.817), fresh det_s23 0.877 (0.880). The option is kept (default 0).
 
+Session 6, the arm-scan network ``fast_cnn_arm.onnx`` (``cnn.domain=arm``): ``seedmap train fast-cnn data/det_s1
+data/det_s31 data/det_s32 data/det_s33 data/det_s34 data/det_s35 data/arm_train/p130 ... data/arm_train/p139
+--val data/det_s36 --val data/arm_train/p140 --val data/arm_train/p141 --steps 6000 --arm-fraction 0.4 --out DIR``
+(arm scans: ``seedmap simulate panicle --seed N --views 24 --out data/arm_train/pN``; 40 % of the crops from
+them; 669 s CPU on one torch thread). Validation: panicles 140-141 box F1 0.617 (field network 0.409), seeds with
+>= 2 keypoints 12 % (43 %); row range det_s36 F1 0.884 (field network 0.898), hence two networks. Tried and not
+shipped: fine-tuning the field network on the same mix (``--init fast_cnn.onnx --lr 1e-3 --steps 3000
+--arm-fraction 0.5``, 331 s CPU): det_s36 0.875, det_s45 0.866, panicles 0.582 -- worse on both.
+
 Inference does not need torch: :func:`export_onnx` writes an ONNX graph that
 :mod:`seedmap.detect.cnn` runs in onnxruntime. Weights/checkpoints are safetensors.
 """
@@ -110,6 +119,7 @@ class TrainImage:
     kp: np.ndarray  # (N, 2) float32 keypoint targets (u, v)
     centers: np.ndarray  # (N, 2) int peak pixels
     area: np.ndarray  # (N,) float32 visible pixels of each instance
+    arm: bool = False  # from an arm scan (a dataset with arm.yaml: close-up panicle images)
 
 
 def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 1) -> TrainImage:
@@ -139,9 +149,15 @@ def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 1) 
     return TrainImage(rgb, idx, boxes, kp, c, inst.area[rows].astype(np.float32))
 
 
+def is_arm_scan(dataset: str | Path) -> bool:
+    """True for a simulated arm scan (``seedmap simulate panicle``: close-up panicle views, seeds ~2x the
+    area of the field images' seeds, flash-saturated), recognised by its ``arm.yaml``."""
+    return (Path(dataset) / "arm.yaml").is_file()
+
+
 def load_training_images(datasets: list[str | Path], frames: dict | None = None, min_area: int = 1,
                          progress: bool = False) -> list[TrainImage]:
-    """Every (frame, camera) image of the simulated ``datasets`` with its targets."""
+    """Every (frame, camera) image of the simulated ``datasets`` with its targets (``arm`` set for arm scans)."""
     from seedmap.io.images import read_rgb
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
@@ -158,9 +174,22 @@ def load_training_images(datasets: list[str | Path], frames: dict | None = None,
         items = tqdm(items, desc="cnn targets", unit="img")
     out = []
     for ds, i, cam in items:
-        out.append(image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam),
-                                 ds.gt_instances(i, cam), min_area))
+        ti = image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam), ds.gt_instances(i, cam),
+                           min_area)
+        ti.arm = is_arm_scan(ds.root)
+        out.append(ti)
     return out
+
+
+def image_weights(images: list[TrainImage], arm_fraction: float | None) -> np.ndarray | None:
+    """Sampling probabilities of the images so that ``arm_fraction`` of the crops come from arm scans
+    (None, or only one kind present: None = every image alike)."""
+    if arm_fraction is None:
+        return None
+    arm = np.array([im.arm for im in images], bool)
+    if arm.all() or not arm.any():
+        return None
+    return np.where(arm, arm_fraction / arm.sum(), (1.0 - arm_fraction) / (~arm).sum())
 
 
 @dataclass
@@ -194,8 +223,8 @@ def _render_heat(size: int, kp: np.ndarray, sigma: np.ndarray, out: np.ndarray) 
 
 
 def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Generator,
-               seed_fraction: float = 0.75, augment: bool = True, spec: CropSpec | None = None
-               ) -> tuple[np.ndarray, ...]:
+               seed_fraction: float = 0.75, augment: bool = True, spec: CropSpec | None = None,
+               weights: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """``(x (n,3,S,S), heat (n,S,S), reg (n,6,S,S) = l,t,r,b,dx,dy, reg_mask (n,S,S), ignore (n,S,S))``.
 
     ``seed_fraction`` of the crops are centred near a random seed, the rest anywhere (leaf edges,
@@ -203,6 +232,7 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
     for ``spec.scale_prob`` of the crops, a rescale (seeds seen larger or smaller than in the field
     images, e.g. close-up arm scans). Box targets use pixel-edge coordinates scaled with the crop,
     so ``l + r`` is the (scaled) GT box width; ``ignore`` marks sliver pixels the heatmap loss skips.
+    ``weights``: sampling probability of each image (None = uniform; :func:`image_weights`).
     """
     import cv2
 
@@ -214,7 +244,7 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
     IG = np.zeros((n, size, size), np.float32)
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
     for k in range(n):
-        im = images[int(rng.integers(len(images)))]
+        im = images[int(rng.integers(len(images)) if weights is None else rng.choice(len(images), p=weights))]
         h, w = im.inst.shape
         s = 1.0
         if augment and sp.scale_prob > 0 and rng.random() < sp.scale_prob:
@@ -356,10 +386,16 @@ class CnnTrainConfig:
     iou_weight: float = 1.0
     #: box/offset loss weight of a mask pixel = 1 + box_center_weight x heat target (0 = uniform, session 4)
     box_center_weight: float = 0.0
+    #: fraction of the crops taken from arm-scan datasets (datasets with arm.yaml) when both kinds are given
+    #: (None = every image alike, session 4)
+    arm_fraction: float | None = None
     #: fraction of crops rescaled by U(scale_lo, scale_hi) (larger seeds of close-up arm scans)
     scale_prob: float = 0.5
     scale_lo: float = 0.8
     scale_hi: float = 1.7
+    #: start from the weights of this fast_cnn ONNX file (fine-tuning; its channels replace c1/c2) instead of a
+    #: random initialisation
+    init_weights: str | None = None
     #: evaluate the held-out loss every this many steps (and write the checkpoint)
     val_every: int = 250
     val_crops: int = 96
@@ -409,6 +445,17 @@ def load_checkpoint(path: Path, net, opt) -> tuple[int, list]:  # noqa: ANN001
                 sd["state"].setdefault(int(i), {})[name] = val.reshape(()) if name == "step" else val
         opt.load_state_dict(sd)
     return int(meta.get("step", 0)), json.loads(meta.get("history", "[]"))
+
+
+def onnx_weights(path: str | Path) -> dict[str, np.ndarray]:
+    """The parameters of a fast_cnn ONNX file (:func:`export_onnx`) by their torch names, e.g. ``stem.weight``."""
+    import onnx
+    from onnx import numpy_helper
+
+    from seedmap.detect.cnn import load_session
+
+    load_session(path)  # a one-line InputError unless it is a readable fast_cnn model
+    return {i.name: numpy_helper.to_array(i).copy() for i in onnx.load(str(path)).graph.initializer}
 
 
 def export_onnx(net, path: Path, info: dict | None = None) -> Path:  # noqa: ANN001
@@ -471,8 +518,10 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         va = load_training_images(train_sets, fr_va, 1, progress)
     spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
     vrng = np.random.default_rng(cfg.seed + 1)
+    w_tr, w_va = image_weights(tr, cfg.arm_fraction), image_weights(va, cfg.arm_fraction)
     vbatch = [torch.from_numpy(np.ascontiguousarray(a))
-              for a in crop_batch(va, cfg.val_crops, cfg.crop, vrng, cfg.seed_fraction, augment=False, spec=spec)]
+              for a in crop_batch(va, cfg.val_crops, cfg.crop, vrng, cfg.seed_fraction, augment=False, spec=spec,
+                                  weights=w_va)]
 
     ck = out / "checkpoint.safetensors"
     if resume:
@@ -483,7 +532,19 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         old = json.loads(read_safetensors(ck, "checkpoint")[1].get("config", "{}"))
         # the architecture comes from the checkpoint, not from the command line
         cfg.c1, cfg.c2 = int(old.get("c1", cfg.c1)), int(old.get("c2", cfg.c2))
+    init = None
+    if cfg.init_weights and not resume:
+        init = onnx_weights(cfg.init_weights)
+        if "stem.weight" not in init or "down.weight" not in init:
+            raise InputError("has no SeedNet parameters (stem/down) to start from", cfg.init_weights)
+        cfg.c1, cfg.c2 = int(init["stem.weight"].shape[0]), int(init["down.weight"].shape[0])
     net = build_net(cfg.c1, cfg.c2)
+    if init is not None:
+        sd = net.state_dict()
+        missing = sorted(set(sd) - set(init))
+        if missing:
+            raise InputError(f"lacks parameters {', '.join(missing[:3])}", cfg.init_weights)
+        net.load_state_dict({k: torch.from_numpy(init[k]) for k in sd})
     opt = torch.optim.Adam(net.parameters(), cfg.lr)
     step, history = 0, []
     if resume:
@@ -515,7 +576,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     prev_cpu = sum(h.get("cpu_s", 0.0) for h in history[-1:]) if history else 0.0
     while step < cfg.steps:
         x, *tg = (torch.from_numpy(np.ascontiguousarray(a))
-                  for a in crop_batch(tr, cfg.batch, cfg.crop, rng, cfg.seed_fraction, spec=spec))
+                  for a in crop_batch(tr, cfg.batch, cfg.crop, rng, cfg.seed_fraction, spec=spec, weights=w_tr))
         set_lr(step)
         loss, *_ = losses(net(x), *tg, iou_weight=cfg.iou_weight, center_weight=cfg.box_center_weight)
         opt.zero_grad()
