@@ -47,23 +47,32 @@ METHODS_3D = ("density", "tracks", "rays")  # de-duplicate per-view 3D centres (
 KPS_CACHE_VERSION = 2  # per-view keypoints + SGBM disparity at the left keypoints
 
 
-def _kps_cache_path(cache: Path, s: int, det: str) -> Path:
+def _recon_config(det: str, detector_set: tuple[str, ...] = ()):  # noqa: ANN202 - ReconConfig
+    """The pipeline's config for detector ``det`` with ``detector_set`` appended to its detector overrides."""
+    from seedmap.recon.config import ReconConfig
+
+    cfg = ReconConfig(detector=det)
+    cfg.detector_overrides = list(cfg.detector_overrides) + list(detector_set)
+    return cfg
+
+
+def _kps_cache_path(cache: Path, s: int, det: str, detector_set: tuple[str, ...] = ()) -> Path:
     """Cache file of a panicle's 2D detections, keyed by a hash of everything that makes them: the
     detector name and resolved config, its weights file (learned detectors), the SGBM/cloud config
     (the keypoint disparities) and the cache format -- a retrained detector gets a fresh cache."""
     import hashlib
 
     from seedmap.detect.config import resolve_config
-    from seedmap.recon.config import ReconConfig
 
-    cfg = ReconConfig(detector=det)
-    h = hashlib.sha1(json.dumps([KPS_CACHE_VERSION, det, resolve_config(None, cfg.detector_overrides).model_dump(),
+    cfg = _recon_config(det, detector_set)
+    dcfg = resolve_config(None, cfg.detector_overrides)
+    h = hashlib.sha1(json.dumps([KPS_CACHE_VERSION, det, dcfg.model_dump(),
                                  cfg.sgbm.model_dump(), cfg.cloud.model_dump()], sort_keys=True,
                                 default=str).encode())
-    if det == "fast":
+    if det in ("fast", "fast-cnn"):
         from seedmap.detect.cnn import default_cnn_path
 
-        w = default_cnn_path()
+        w = Path(dcfg.cnn.weights) if dcfg.cnn.weights else default_cnn_path(dcfg.cnn.domain)
         if w.is_file():
             h.update(w.read_bytes())
     return cache / f"p{s}_kps_{h.hexdigest()[:10]}.npz"
@@ -80,7 +89,7 @@ def _save_kps(path: Path, kps: list) -> None:
     np.savez_compressed(path, **arrs)
 
 
-def _detections_cache(root: Path, det: str, path: Path) -> tuple[list, object]:
+def _detections_cache(root: Path, det: str, path: Path, detector_set: tuple[str, ...] = ()) -> tuple[list, object]:
     """Per-view 2D detections (StereoKeypoints with the SGBM disparity at the left keypoints) of a
     scan with detector ``det``, cached in ``path`` (detector and SGBM run only when it is missing),
     and the scan's calibration."""
@@ -92,10 +101,9 @@ def _detections_cache(root: Path, det: str, path: Path) -> tuple[list, object]:
         from tqdm import tqdm
 
         from seedmap.detect import make_detector
-        from seedmap.recon.config import ReconConfig
         from seedmap.recon.stereo import compute_disparity
 
-        cfg = ReconConfig(detector=det)
+        cfg = _recon_config(det, detector_set)
         d = make_detector(det, dataset=ds, overrides=list(cfg.detector_overrides))
         kps = []
         for i in tqdm(range(len(ds)), desc=f"{root.name} detections + SGBM", unit="view"):
@@ -199,13 +207,15 @@ def _summarize(rows: list[dict], modes: tuple[str, ...], det: str) -> dict:
 
 def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("gt",),
              modes: tuple[str, ...] = ("fk", "full", "seeds"), recount: bool = False,
-             count_set: tuple[str, ...] = ()) -> dict:
+             count_set: tuple[str, ...] = (), detector_set: tuple[str, ...] = (), tag: str = "") -> dict:
     """Accuracy of fk / full / seeds registration and of seed counting on simulated scans, per detector.
 
     Count references (both reported): ``gt_visible`` = centre visible and >= 12 px in >= 1 left view
     (session 1); ``gt_countable`` = >= 12 px in the left AND right image of >= 2 views (what a 3D
     counter that needs stereo depth and a second view can count). Each reconstruction's seed
-    observations are cached (``cache/pSEED_MODE.npz``); ``recount`` re-runs only the counting on them."""
+    observations are cached (``cache/pSEED_MODE.npz``); ``recount`` re-runs only the counting on them.
+    ``detector_set``: detector config overrides appended to the pipeline's (e.g. ``cnn.weights=W.onnx``);
+    ``tag``: results go to ``results/recon_eval_bench/DETECTOR_TAG`` (runs with other settings kept apart)."""
     from seedmap.recon.config import ReconConfig
     from seedmap.recon.pipeline import gt_countable_seeds, gt_metrics, gt_visible_seeds, prepare_scan, reconstruct
     from seedmap.sim.arm import ArmConfig
@@ -213,7 +223,7 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
 
     out_all: dict = {}
     for det in detectors:
-        out = Path("results/recon_eval_bench") / det
+        out = Path("results/recon_eval_bench") / (f"{det}_{tag}" if tag else det)
         (out / "cache").mkdir(parents=True, exist_ok=True)
         rows = []
         for s in seeds:
@@ -223,7 +233,8 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 for mode in row["modes"]:
                     with np.load(out / "cache" / f"p{s}_{mode}.npz") as z:
                         obs = {k: z[k] for k in z.files}
-                    kps, calib = _detections_cache(root, det, _kps_cache_path(out / "cache", s, det))
+                    kps, calib = _detections_cache(root, det, _kps_cache_path(out / "cache", s, det, detector_set),
+                                                   detector_set)
                     row["modes"][mode].update(_count_fields(obs, row["gt_visible"], gt_countable_seeds(root, 12),
                                                             root, row["oracle"] and mode == "seeds", kps, calib,
                                                             count_set, det))
@@ -232,7 +243,7 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 continue
             if not root.exists():
                 simulate_panicle(PanicleScanConfig(seed=s, arm=ArmConfig(views=views)), root, progress=True)
-            cfg = ReconConfig(detector=det)
+            cfg = _recon_config(det, detector_set)
             c0, w0 = time.process_time(), time.perf_counter()
             prep = prepare_scan(root, cfg, progress=True)
             gt_vis = int(len(gt_visible_seeds(root, 12)))
@@ -254,10 +265,10 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 obs = {"xyz": rec.obs_xyz, "view": rec.obs_view, "diam": rec.obs_diam, "seed_id": rec.obs_seed_id,
                        "poses": rec.poses}
                 np.savez_compressed(out / "cache" / f"p{s}_{mode}.npz", **obs)
-                kp_path = _kps_cache_path(out / "cache", s, det)
+                kp_path = _kps_cache_path(out / "cache", s, det, detector_set)
                 if not kp_path.is_file():  # the prepared views hold them already (no second detector run)
                     _save_kps(kp_path, [v.keypoints if v is not None else None for v in prep.views])
-                kps, calib = _detections_cache(root, det, kp_path)
+                kps, calib = _detections_cache(root, det, kp_path, detector_set)
                 m.update(_count_fields(obs, gt_vis, countable, root, rec.oracle and mode == "seeds", kps, calib,
                                        count_set, det))
                 row["modes"][mode] = m
@@ -265,6 +276,7 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
             rows.append(row)
         summary = _summarize(rows, modes if not recount else tuple(rows[0]["modes"]), det)
         summary["multiview_count_set"] = list(count_set)
+        summary["detector_set"] = list(detector_set)
         (out / "summary.json").write_text(json.dumps(summary, indent=1))
         out_all[det] = summary
     return out_all
@@ -279,6 +291,9 @@ def main() -> None:
                                                           "observations of an earlier --eval run")
     ap.add_argument("--count-set", nargs="*", default=[], help="--eval: CountConfig overrides (key=value) of "
                                                                "the multiview count, e.g. mv_relink_px=3")
+    ap.add_argument("--detector-set", nargs="*", default=[], help="--eval: detector config overrides "
+                                                                  "(key=value) added to the pipeline's")
+    ap.add_argument("--tag", default="", help="--eval: write to results/recon_eval_bench/DETECTOR_TAG")
     ap.add_argument("--dataset", type=Path, default=None, help="existing arm scan dataset")
     ap.add_argument("--views", type=int, default=12)
     ap.add_argument("--seed", type=int, default=42)
@@ -286,7 +301,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.eval:
         print(json.dumps(run_eval(args.eval, detectors=tuple(args.detectors), modes=tuple(args.modes),
-                                         recount=args.recount, count_set=tuple(args.count_set)), indent=1))
+                                         recount=args.recount, count_set=tuple(args.count_set),
+                                         detector_set=tuple(args.detector_set), tag=args.tag), indent=1))
         return
 
     from seedmap.recon.config import ReconConfig
