@@ -26,6 +26,12 @@ Session 5 (scale-aware ``gt`` tolerances, ``CountConfig.mv_scale_ref_px``, tuned
 ``..._s5_{heldout,fresh,fresh2}.json`` = ``--recount`` on 100 101-110, 100 111-115 and on the panicles
 116-125 rendered after the freeze (``--eval 100 116 ... 125 --modes seeds`` reconstructs them;
 ``_fresh2`` summaries of ``fast`` / ``fast-classic`` cover 116-120).
+Session 6 (``fast`` = the arm-scan network ``cnn.domain=arm`` at threshold 0.35, the pipeline's default, with the
+re-tuned ``fast`` count profile; tuned on 95-99 + 111-115 with ``--detector-set cnn.weights=W cnn.threshold=0.35
+--tag T --recount --count-set ...``): ``..._fast_s6_{tuning,heldout,fresh2}.json`` = ``--eval 100 95 ... 99 111
+... 115`` / ``100 101 ... 110`` / ``100 116 ... 125 --detectors fast --modes seeds --tag s6``;
+``..._{gt,fast-classic,fast}_s6_fresh3.json`` = the panicles 150-159 rendered after the freeze and run once
+(``--eval 100 150 ... 159 --detectors gt fast-classic fast --modes seeds --tag fresh6``).
 """
 
 from __future__ import annotations

@@ -266,3 +266,20 @@ def test_detector_profiles_are_applied_once_and_can_be_switched_off():
     assert cfg.for_detector("some-new-detector") is cfg
     assert not CountConfig(detector_profile=False).for_detector("gt").mv_link_joint
     assert ReconConfig(detector="gt").count.for_detector("gt").mv_link_joint
+
+
+def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
+    """Session 6: the pipeline's detector overrides select the CNN's arm-scan weights (threshold 0.35) while
+    plain ``fast`` keeps the field network; ``fast`` and ``fast-cnn`` count with twice the pixel tolerances."""
+    from seedmap.detect import make_detector
+
+    rc = ReconConfig(detector="fast")
+    det = make_detector(rc.detector, overrides=list(rc.detector_overrides))
+    assert det.path.name == "fast_cnn_arm.onnx" and det.cfg.threshold == 0.35
+    assert make_detector("fast").path.name == "fast_cnn.onnx"
+    plain = CountConfig()
+    for name in ("fast", "fast-cnn"):
+        c = rc.count.for_detector(name)
+        assert c.mv_stereo_dv_px == 2 * plain.mv_stereo_dv_px and c.mv_link_px == 2 * plain.mv_link_px
+        assert c.mv_max_reproj_px == 2 * plain.mv_max_reproj_px and c.mv_grow_px == 2 * plain.mv_grow_px
+        assert c.mv_merge_px == 3.0 and c.mv_dedupe_shared == 0.6

@@ -32,6 +32,8 @@ DETECTOR_PROFILES: dict[str, list[str]] = {
              "mv_grow_px=4"],
     "fast-classic": ["mv_dedupe_shared=1.0"],
 }
+#: ``fast-cnn`` is the same network as ``fast`` (when its weights exist), so it counts with the same profile
+DETECTOR_PROFILES["fast-cnn"] = list(DETECTOR_PROFILES["fast"])
 
 
 #: Pixel tolerances of the multiview counter that scale with the seeds' image size
