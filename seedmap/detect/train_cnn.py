@@ -44,7 +44,10 @@ data/det_s31 data/det_s32 data/det_s33 data/det_s34 data/det_s35 data/arm_train/
 --val data/det_s36 --val data/arm_train/p140 --val data/arm_train/p141 --steps 6000 --arm-fraction 0.4 --out DIR``
 (arm scans: ``seedmap simulate panicle --seed N --views 24 --out data/arm_train/pN``; 40 % of the crops from
 them; 669 s CPU on one torch thread). Validation: panicles 140-141 box F1 0.617 (field network 0.409), seeds with
->= 2 keypoints 12 % (43 %); row range det_s36 F1 0.884 (field network 0.898), hence two networks. Tried and not
+>= 2 keypoints 12 % (43 %); row range det_s36 F1 0.884 (field network 0.898), hence two networks (held-out
+ranges det_s2 / det_s21 / det_s2_new / det_s22 / det_s23, default eval: arm network 0.874 / 0.877 / 0.877 / 0.798 /
+0.866, field network 0.871 / 0.888 / 0.892 / 0.817 / 0.880). On the tuning panicle 99 (``seedmap eval detect``,
+default GT size): box F1 0.488 -> 0.616, keypoint median 1.38 -> 0.68 px. Tried and not
 shipped: fine-tuning the field network on the same mix (``--init fast_cnn.onnx --lr 1e-3 --steps 3000
 --arm-fraction 0.5``, 331 s CPU): det_s36 0.875, det_s45 0.866, panicles 0.582 -- worse on both.
 
