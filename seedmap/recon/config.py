@@ -227,7 +227,9 @@ class ReconConfig(ConfigModel):
     detector_overrides: list[str] = Field(default_factory=lambda: ["gt.min_area_px=12", "cnn.domain=arm",
                                                                   "cnn.threshold=0.35"],
                                           description="key=value overrides of the detector config (the CNN "
-                                                      "of `fast` runs its arm-scan network, session 6)")
+                                                      "of `fast` runs its arm-scan network, session 6); setting "
+                                                      "this list replaces all three defaults, so keep the ones "
+                                                      "you want")
     sgbm: SgbmConfig = Field(default_factory=SgbmConfig)
     cloud: CloudConfig = Field(default_factory=CloudConfig)
     seeds: SeedCentreConfig = Field(default_factory=SeedCentreConfig)
