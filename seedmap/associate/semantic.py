@@ -794,14 +794,22 @@ def prior_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray,
     if n == 0 or m == 0:
         return Matches()
     sig = np.broadcast_to(np.asarray(sigma, np.float64), (n, 2))
-    gs = cfg.field_gate_sigma
-    ia, ib = box_pairs(ka + pred, kb, gs * sig.max(0))
+    ia, ib, res = _prior_candidates(ka, kb, gate, pred, sig, cfg.field_gate_sigma)
+    return _assign_in_prior(fa, fb, sa, sb, ia, ib, res, n, m, cfg, cfg.prior_ratio)
+
+
+def _prior_candidates(ka: np.ndarray, kb: np.ndarray, gate, pred: np.ndarray, sig: np.ndarray,
+                      gate_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate pairs ``(ia, ib)`` of a per-keypoint prior ``pred`` (N, 2; image px) that pass
+    ``gate`` and lie within ``gate_sigma`` normalised residuals (``sig``, N x 2 px), with those
+    residuals; shared by :func:`prior_assign` and :func:`scored_prior_assign`."""
+    ia, ib = box_pairs(ka + pred, kb, gate_sigma * sig.max(0))
     ok = gate(ia, ib)
     ia, ib = ia[ok], ib[ok]
     r = (kb[ib] - ka[ia] - pred[ia]) / sig[ia]
     res = np.hypot(r[:, 0], r[:, 1])
-    ok = res <= gs
-    return _assign_in_prior(fa, fb, sa, sb, ia[ok], ib[ok], res[ok], n, m, cfg, cfg.prior_ratio)
+    ok = res <= gate_sigma
+    return ia[ok], ib[ok], res[ok]
 
 
 def score_features(ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndarray, pred: np.ndarray,
@@ -842,13 +850,7 @@ def scored_prior_assign(ka: np.ndarray, kb: np.ndarray, sa: np.ndarray, sb: np.n
     if n == 0 or m == 0:
         return Matches()
     sig = np.broadcast_to(np.asarray(sig, np.float64), (n, 2))
-    gs = cfg.score_gate_sigma
-    ia, ib = box_pairs(ka + pred, kb, gs * sig.max(0))
-    ok = gate(ia, ib)
-    ia, ib = ia[ok], ib[ok]
-    r = (kb[ib] - ka[ia] - pred[ia]) / sig[ia]
-    ok = np.hypot(r[:, 0], r[:, 1]) <= gs
-    ia, ib = ia[ok], ib[ok]
+    ia, ib, _ = _prior_candidates(ka, kb, gate, pred, sig, cfg.score_gate_sigma)
     if len(ia) == 0:
         return Matches()
     local_pred = field_at(ka, pred, ka, cfg.field_k) if n >= 3 else pred
