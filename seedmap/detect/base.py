@@ -52,6 +52,61 @@ class Detector:
         return self.detect(image)
 
 
+def exposure_gain(image: np.ndarray, ref_p99: float, tolerance: float, max_gain: float) -> float:
+    """Brightness gain for ``image`` (RGB uint8): 1 when its 99th grey percentile is within a factor
+    ``tolerance`` of ``ref_p99``, else ``ref_p99 / p99`` clipped to ``[1 / max_gain, max_gain]``."""
+    import cv2
+
+    grey = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    p99 = max(float(np.percentile(grey[::2, ::2], 99)), 1.0)
+    gain = ref_p99 / p99
+    if 1.0 / tolerance <= gain <= tolerance:
+        return 1.0
+    return float(np.clip(gain, 1.0 / max_gain, max_gain))
+
+
+def apply_gain(image: np.ndarray, gain: float) -> np.ndarray:
+    """``image`` scaled by ``gain`` (uint8, saturating); the same array when ``gain`` is 1."""
+    if gain == 1.0:
+        return image
+    import cv2
+
+    return cv2.convertScaleAbs(image, alpha=gain)
+
+
+class ExposureNormalised(Detector):
+    """Wraps an image-based detector: each image is brought to the reference exposure first
+    (:class:`seedmap.detect.config.ExposureConfig`); everything else is the wrapped detector's."""
+
+    def __init__(self, inner: Detector, cfg) -> None:
+        self.inner = inner
+        self.cfg = cfg
+
+    @property
+    def name(self) -> str:  # type: ignore[override]
+        return self.inner.name
+
+    @property
+    def is_oracle(self) -> bool:  # type: ignore[override]
+        return self.inner.is_oracle
+
+    def __getattr__(self, item: str):  # config, sessions ... of the wrapped detector
+        return getattr(self.__dict__["inner"], item)
+
+    def _norm(self, image: np.ndarray) -> np.ndarray:
+        a = check_image(image)
+        c = self.cfg
+        return apply_gain(a, exposure_gain(a, c.ref_p99, c.tolerance, c.max_gain))
+
+    def detect(self, image: np.ndarray) -> Detections:
+        return self.inner.detect(self._norm(image))
+
+    def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
+        from dataclasses import replace
+
+        return self.inner.detect_stereo(replace(frame, left=self._norm(frame.left), right=self._norm(frame.right)))
+
+
 # name -> factory(**kwargs) -> Detector ; factories import their heavy modules lazily
 _REGISTRY: dict[str, Callable[..., Detector]] = {}
 _HELP: dict[str, str] = {}
@@ -105,4 +160,7 @@ def make_detector(name: str, *, dataset: str | Path | object | None = None, weig
     if name not in _REGISTRY:
         raise SeedmapError(f"unknown detector {name!r} (known: {', '.join(available_detectors())})")
     cfg = resolve_config(config if isinstance(config, DetectConfig) else None, overrides)
-    return _REGISTRY[name](dataset=dataset, weights=weights, config=cfg)
+    det = _REGISTRY[name](dataset=dataset, weights=weights, config=cfg)
+    if cfg.exposure.enabled and not det.is_oracle:
+        det = ExposureNormalised(det, cfg.exposure)
+    return det

@@ -115,7 +115,7 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
     cfg = config or SlamConfig()
     ds = open_dataset(dataset)
     n = len(ds) if max_frames is None else min(len(ds), max_frames)
-    det = _detector_for(detector, Path(dataset)) if matcher == "seeds" else None
+    det = _detector_for(detector, Path(dataset), cfg.detect) if matcher == "seeds" else None
     m = make_matcher(matcher, ds.calib, detector=det, cfg=cfg)
     sg, tg = stereo_gate(ds.calib.width, cfg.gates), temporal_gate(ds.calib.width, cfg.gates)
     st_tot, tm_tot = MatchCounts(), MatchCounts()

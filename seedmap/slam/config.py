@@ -12,6 +12,7 @@ from pydantic import Field
 
 from seedmap.associate.base import GateConfig
 from seedmap.associate.semantic import SemanticConfig
+from seedmap.detect.config import DetectConfig
 from seedmap.io.options import DatasetOptions
 from seedmap.config import ConfigModel
 
@@ -132,6 +133,9 @@ class SlamConfig(ConfigModel):
     cluster: ClusterConfig = Field(default_factory=ClusterConfig)
     #: how the input is opened (format, bag topics, calibration file...): seedmap.io.options.DatasetOptions
     dataset: DatasetOptions = Field(default_factory=DatasetOptions)
+    #: settings of the seed detector (seedmap.detect.config.DetectConfig), e.g. ``--set
+    #: detect.cnn.threshold=0.4`` or ``--set detect.exposure.enabled=true``
+    detect: DetectConfig = Field(default_factory=DetectConfig)
     #: parameters of the descriptor baselines (seedmap.associate.features.FeatureMatcherConfig)
     features: dict[str, Any] = Field(default_factory=dict)
     #: process at most this many frames (None = all)

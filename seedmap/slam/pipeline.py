@@ -52,10 +52,11 @@ def range_length_of(dataset: str | Path) -> float | None:
     return float(v) if v is not None else None
 
 
-def _detector_for(name: str, dataset: Path):
+def _detector_for(name: str, dataset: Path, config=None):
+    """The seed detector ``name`` with the run's ``detect`` settings (a DetectConfig; None = defaults)."""
     from seedmap.detect import make_detector
 
-    return make_detector(name, dataset=dataset)
+    return make_detector(name, dataset=dataset, config=config)
 
 
 def run_slam(
@@ -89,7 +90,7 @@ def run_slam(
     n = len(ds) if cfg.max_frames is None else min(len(ds), cfg.max_frames)
     if n == 0:
         raise SeedmapError("dataset has no frames", dataset)
-    det = _detector_for(detector, Path(dataset)) if matcher.strip().lower() == "seeds" else None
+    det = _detector_for(detector, Path(dataset), cfg.detect) if matcher.strip().lower() == "seeds" else None
     m = make_matcher(matcher, calib, detector=det, cfg=cfg)
     first = np.eye(4)  # the prior on the first pose: GT at the first frame's time when GT covers it
     if gt is not None and len(gt):
