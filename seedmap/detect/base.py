@@ -52,6 +52,19 @@ class Detector:
         return self.detect(image)
 
 
+def map_to_input(boxes: np.ndarray, ellipses: np.ndarray, sx: float, sy: float,
+                 s_axes: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes and ellipses found on an image resized by ``(sx, sy)`` in the input image's pixels.
+
+    Pixel-centre convention for the centres, ``u_in = (u_small + 0.5) / sx - 0.5``; box edges are pixel
+    edges (divided by the factor); the ellipse axes are divided by ``s_axes``. Returns new arrays."""
+    ell = ellipses.copy()
+    ell[:, 0] = (ell[:, 0] + 0.5) / sx - 0.5
+    ell[:, 1] = (ell[:, 1] + 0.5) / sy - 0.5
+    ell[:, 2:4] /= s_axes
+    return boxes / np.array([sx, sy, sx, sy]), ell
+
+
 def exposure_gain(image: np.ndarray, ref_p99: float, tolerance: float, max_gain: float) -> float:
     """Brightness gain for ``image`` (RGB uint8): 1 when its 99th grey percentile is within a factor
     ``tolerance`` of ``ref_p99``, else ``ref_p99 / p99`` clipped to ``[1 / max_gain, max_gain]``."""

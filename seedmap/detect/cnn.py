@@ -45,7 +45,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seedmap.detect.base import Detector, check_image
+from seedmap.detect.base import Detector, check_image, map_to_input
 from seedmap.detect.config import CnnConfig, FastConfig
 from seedmap.errors import ConfigError, InputError
 from seedmap.records import Detections, StereoDetections, StereoFrame
@@ -211,13 +211,7 @@ class CnnDetector(Detector):
         d = self._detect(small)
         if len(d) == 0:
             return d
-        sx, sy = ws / w, hs / h
-        ell = d.ellipses.copy()
-        # pixel-centre convention: u_full = (u_small + 0.5) / s - 0.5; box edges are pixel edges
-        ell[:, 0] = (ell[:, 0] + 0.5) / sx - 0.5
-        ell[:, 1] = (ell[:, 1] + 0.5) / sy - 0.5
-        ell[:, 2:4] /= s
-        boxes = d.boxes / np.array([sx, sy, sx, sy])
+        boxes, ell = map_to_input(d.boxes, d.ellipses, ws / w, hs / h, s)
         return Detections(boxes=boxes, scores=d.scores, ellipses=ell)
 
     def _detect(self, img: np.ndarray) -> Detections:

@@ -38,7 +38,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from seedmap.detect.base import Detector, check_image, register_detector
+from seedmap.detect.base import Detector, check_image, map_to_input, register_detector
 from seedmap.detect.config import FastConfig
 from seedmap.detect.ellipse import ellipse_from_moments, fit_ellipses_labels
 from seedmap.records import Detections
@@ -179,10 +179,7 @@ class FastDetector(Detector):
         ell = ell[ok]
         score = np.clip(dog[pv, pu][ok].astype(np.float32) / (4.0 * c.min_response), 0.0, 1.0)
         if s != 1.0:
-            # pixel-centre convention: u_full = (u_small + 0.5) / s - 0.5
-            ell[:, :2] = (ell[:, :2] + 0.5) / s - 0.5
-            ell[:, 2:4] /= s
-            boxes = boxes / s
+            boxes, ell = map_to_input(boxes, ell, s, s, s)
         return Detections(boxes=boxes, scores=score, ellipses=ell)
 
 
