@@ -170,16 +170,17 @@ def load_training_images(datasets: list[str | Path], frames: dict | None = None,
         if not ds.has_gt:
             raise InputError("dataset has no ground truth (gt/instances/) to train on", d)
         fr = (frames or {}).get(str(d), range(len(ds)))
-        items += [(ds, i, cam) for i in fr for cam in ("left", "right")]
+        arm = is_arm_scan(ds.root)
+        items += [(ds, arm, i, cam) for i in fr for cam in ("left", "right")]
     if progress:
         from tqdm import tqdm
 
         items = tqdm(items, desc="cnn targets", unit="img")
     out = []
-    for ds, i, cam in items:
+    for ds, arm, i, cam in items:
         ti = image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam), ds.gt_instances(i, cam),
                            min_area)
-        ti.arm = is_arm_scan(ds.root)
+        ti.arm = arm
         out.append(ti)
     return out
 
