@@ -76,9 +76,9 @@ def _kps_cache_path(cache: Path, s: int, det: str, detector_set: tuple[str, ...]
                                  cfg.sgbm.model_dump(), cfg.cloud.model_dump()], sort_keys=True,
                                 default=str).encode())
     if det in ("fast", "fast-cnn"):
-        from seedmap.detect.cnn import default_cnn_path
+        from seedmap.detect.cnn import cnn_weights_path
 
-        w = Path(dcfg.cnn.weights) if dcfg.cnn.weights else default_cnn_path(dcfg.cnn.domain)
+        w = cnn_weights_path(dcfg.cnn)
         if w.is_file():
             h.update(w.read_bytes())
     return cache / f"p{s}_kps_{h.hexdigest()[:10]}.npz"

@@ -60,6 +60,12 @@ def default_cnn_path(domain: str = "field") -> Path:
     return Path(__file__).with_name("weights") / ("fast_cnn.onnx" if domain == "field" else "fast_cnn_arm.onnx")
 
 
+def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
+    """The ONNX file a detector with config ``cfg`` runs: ``weights``, else ``cfg.weights``, else the
+    shipped network of ``cfg.domain``."""
+    return Path(weights or cfg.weights or default_cnn_path(cfg.domain))
+
+
 def load_session(path: str | Path, threads: int = 0):  # noqa: ANN201 - onnxruntime.InferenceSession
     """An onnxruntime session of a ``fast_cnn`` ONNX file; a one-line :class:`InputError` otherwise."""
     import onnxruntime as ort
@@ -172,7 +178,7 @@ class CnnDetector(Detector):
         if self.cfg.tile and (self.cfg.tile % 2 or self.cfg.margin % 2):
             raise ConfigError(f"cnn.tile ({self.cfg.tile}) and cnn.margin ({self.cfg.margin}) must be even "
                               "(the network halves the resolution)")
-        self.path = Path(weights or self.cfg.weights or default_cnn_path(self.cfg.domain))
+        self.path = cnn_weights_path(self.cfg, weights)
         self.sess = load_session(self.path, self.cfg.threads)
         meta = self.sess.get_modelmeta().custom_metadata_map
         self.info = json.loads(meta.get("info", "{}"))
