@@ -50,6 +50,7 @@ COUNT_METHODS = ("density", "tracks", "rays", "multiview")
 METHODS_3D = ("density", "tracks", "rays")  # de-duplicate per-view 3D centres (multiview counts 2D detections)
 
 
+DEFAULT_DATA_DIR = Path("data/recon_eval")
 KPS_CACHE_VERSION = 2  # per-view keypoints + SGBM disparity at the left keypoints
 
 
@@ -213,7 +214,8 @@ def _summarize(rows: list[dict], modes: tuple[str, ...], det: str) -> dict:
 
 def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("gt",),
              modes: tuple[str, ...] = ("fk", "full", "seeds"), recount: bool = False,
-             count_set: tuple[str, ...] = (), detector_set: tuple[str, ...] = (), tag: str = "") -> dict:
+             count_set: tuple[str, ...] = (), detector_set: tuple[str, ...] = (), tag: str = "",
+             data_dir: Path = DEFAULT_DATA_DIR) -> dict:
     """Accuracy of fk / full / seeds registration and of seed counting on simulated scans, per detector.
 
     Count references (both reported): ``gt_visible`` = centre visible and >= 12 px in >= 1 left view
@@ -221,7 +223,10 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
     counter that needs stereo depth and a second view can count). Each reconstruction's seed
     observations are cached (``cache/pSEED_MODE.npz``); ``recount`` re-runs only the counting on them.
     ``detector_set``: detector config overrides appended to the pipeline's (e.g. ``cnn.weights=W.onnx``);
-    ``tag``: results go to ``results/recon_eval_bench/DETECTOR_TAG`` (runs with other settings kept apart)."""
+    ``tag``: results go to ``results/recon_eval_bench/DETECTOR_TAG`` (runs with other settings kept apart);
+    ``data_dir``: where the scans are read from / simulated into (``DATA_DIR/pSEED``); a folder other than the
+    default puts its name into the results folder (``DETECTOR_DATADIRNAME_TAG``), so caches of the same panicle
+    number rendered differently never mix."""
     from seedmap.recon.config import ReconConfig
     from seedmap.recon.pipeline import gt_countable_seeds, gt_metrics, gt_visible_seeds, prepare_scan, reconstruct
     from seedmap.sim.arm import ArmConfig
@@ -229,11 +234,12 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
 
     out_all: dict = {}
     for det in detectors:
-        out = Path("results/recon_eval_bench") / (f"{det}_{tag}" if tag else det)
+        name = det if Path(data_dir) == DEFAULT_DATA_DIR else f"{det}_{Path(data_dir).name}"
+        out = Path("results/recon_eval_bench") / (f"{name}_{tag}" if tag else name)
         (out / "cache").mkdir(parents=True, exist_ok=True)
         rows = []
         for s in seeds:
-            root = Path(f"data/recon_eval/p{s}")
+            root = Path(data_dir) / f"p{s}"
             if recount:
                 row = json.loads((out / f"p{s}.json").read_text())
                 for mode in row["modes"]:
@@ -247,8 +253,10 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
                 rows.append(row)
                 continue
-            if not root.exists():
-                simulate_panicle(PanicleScanConfig(seed=s, arm=ArmConfig(views=views)), root, progress=True)
+            if not root.exists():  # (data/recon_eval keeps the sessions 1-6 field gain, exposure=1.0)
+                expo = 1.0 if Path(data_dir) == DEFAULT_DATA_DIR else "auto"
+                simulate_panicle(PanicleScanConfig(seed=s, arm=ArmConfig(views=views), exposure=expo), root,
+                                 progress=True)
             cfg = _recon_config(det, detector_set)
             c0, w0 = time.process_time(), time.perf_counter()
             prep = prepare_scan(root, cfg, progress=True)
@@ -300,6 +308,9 @@ def main() -> None:
     ap.add_argument("--detector-set", nargs="*", default=[], help="--eval: detector config overrides "
                                                                   "(key=value) added to the pipeline's")
     ap.add_argument("--tag", default="", help="--eval: write to results/recon_eval_bench/DETECTOR_TAG")
+    ap.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
+                    help="--eval: scans are read from / simulated into DATA_DIR/pSEED (sessions 1-6: data/recon_eval, "
+                         "flash-saturated; session 7: data/recon_s7, auto exposure)")
     ap.add_argument("--dataset", type=Path, default=None, help="existing arm scan dataset")
     ap.add_argument("--views", type=int, default=12)
     ap.add_argument("--seed", type=int, default=42)
@@ -308,7 +319,8 @@ def main() -> None:
     if args.eval:
         print(json.dumps(run_eval(args.eval, detectors=tuple(args.detectors), modes=tuple(args.modes),
                                          recount=args.recount, count_set=tuple(args.count_set),
-                                         detector_set=tuple(args.detector_set), tag=args.tag), indent=1))
+                                         detector_set=tuple(args.detector_set), tag=args.tag,
+                                         data_dir=args.data_dir), indent=1))
         return
 
     from seedmap.recon.config import ReconConfig

@@ -13,6 +13,17 @@ Besides the standard layout (seedmap.io.seedmap_dataset) the folder holds
 Panicle sway is applied by rendering the panicle at rest from ``D^-1 T_world_cam`` (exactly the
 view of a camera at ``T_world_cam`` looking at the swayed panicle; the scene holds nothing else),
 so the simulator's own wind is switched off for these scans.
+
+Exposure (session 7)
+--------------------
+The renderer's gain makes a white surface facing the flash at ``REF_DISTANCE`` (0.7 m, the field
+camera's stand-off) near full scale; the arm camera is ~0.25 m from the seeds it faces, so with the
+field gain the flash (inverse-square fall-off) saturates most seed pixels. A real arm rig sets its
+exposure for its stand-off, so ``PanicleScanConfig.exposure="auto"`` (the default) scales
+``sim.imaging.exposure`` by ``(d / REF_DISTANCE)^2``, ``d`` = the scan's typical camera-to-seed-surface
+distance (:func:`scan_distance`). A number multiplies the gain instead; ``exposure=1.0`` renders
+exactly the images of sessions 1-6 (the field gain). The gain actually used is written to
+``gt/config.yaml`` (``imaging.exposure``; also a comment at the end of ``gt/scan.yaml``).
 """
 
 from __future__ import annotations
@@ -22,10 +33,12 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from pydantic import Field
+from typing import Literal, Union
+
+from pydantic import Field, field_validator
 
 from seedmap.config import ConfigModel, config_to_yaml
-from seedmap.errors import InputError
+from seedmap.errors import ConfigError, InputError
 from seedmap.geometry import invert, pose_to_tum
 from seedmap.sim.arm import ArmConfig, arm_yaml_dict, simulate_capture, write_joints_csv
 from seedmap.sim.config import CameraConfig, SimConfig, WindConfig
@@ -42,6 +55,38 @@ class PanicleScanConfig(ConfigModel):
     arm: ArmConfig = Field(default_factory=ArmConfig)
     sim: SimConfig = Field(default_factory=_default_sim)
     surface_samples_per_seed: int = Field(60, ge=4)
+    exposure: Union[Literal["auto"], float] = Field(
+        "auto", description='"auto": gain x (scan distance / 0.7 m)^2 so seeds facing the camera are exposed as '
+        "in the field; a number > 0 multiplies sim.imaging.exposure (1.0 = the flash-saturated renders of sessions 1-6)")
+
+    @field_validator("exposure")
+    @classmethod
+    def _positive(cls, v):  # noqa: ANN001, ANN206 - pydantic validator
+        if v != "auto" and not v > 0:
+            raise ValueError(f"must be 'auto' or a number > 0, got {v}")
+        return v
+
+
+def scan_distance(world, arm_radius: float, quantile: float = 0.9) -> float:
+    """Typical distance (m) from the arm camera to the seed surfaces it faces: the stand-off from the
+    rachis axis minus the panicle's radius, taken as the ``quantile`` of the seeds' outer surface
+    distance from the axis (centre distance + largest semi-axis) -- the seeds on the outside of the
+    panicle are the ones facing the camera. Clipped to >= 0.05 m."""
+    xy = world.seeds.xyz[:, :2]
+    outer = np.hypot(xy[:, 0], xy[:, 1]) + world.seeds.radii.max(axis=1)
+    r_pan = float(np.quantile(outer, quantile)) if len(outer) else 0.0
+    return max(float(arm_radius) - r_pan, 0.05)
+
+
+def exposure_factor(cfg: PanicleScanConfig, world) -> float:
+    """Multiplier of ``sim.imaging.exposure`` for this scan (see the module docstring)."""
+    from seedmap.sim.render import REF_DISTANCE
+
+    if cfg.exposure == "auto":
+        return (scan_distance(world, cfg.arm.radius) / REF_DISTANCE) ** 2
+    if not cfg.exposure > 0:
+        raise ConfigError(f"exposure must be 'auto' or a number > 0, got {cfg.exposure}")
+    return float(cfg.exposure)
 
 
 def seed_surface_points(world, per_seed: int, rng: np.random.Generator) -> np.ndarray:
@@ -71,6 +116,10 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
     ss = np.random.SeedSequence(cfg.seed)
     s_world, s_arm, s_surf, s_frames = ss.spawn(4)
     world = build_panicle_world(sim, np.random.default_rng(s_world))
+    factor = exposure_factor(cfg, world)
+    if factor != 1.0:  # (1.0: the config object untouched, the old renders byte for byte)
+        sim = sim.model_copy(update={"imaging": sim.imaging.model_copy(
+            update={"exposure": sim.imaging.exposure * factor})})
     z = world.seeds.xyz[:, 2]
     heights = cfg.arm.heights if cfg.arm.heights else [float(0.5 * (z.min() + z.max()))]
     cap = simulate_capture(cfg.arm, heights, np.random.default_rng(s_arm))
@@ -86,7 +135,10 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
         w.write_gt_seeds(world.seeds)
         w.write_gt_panicle_poses(np.arange(cfg.arm.views), np.zeros(cfg.arm.views, int), pose_to_tum(cap.panicle_motion))
         w.write_gt_config(config_to_yaml(sim))
-        atomic_write_text(tmp / "gt" / "scan.yaml", config_to_yaml(cfg))
+        # (the resolved values as a comment: the file stays loadable as a PanicleScanConfig)
+        atomic_write_text(tmp / "gt" / "scan.yaml", config_to_yaml(cfg) + (
+            f"# resolved_exposure: {sim.imaging.exposure!r} (sim.imaging.exposure used for the images)\n"
+            f"# scan_distance_m: {scan_distance(world, cfg.arm.radius):.4f}\n"))
         buf = io.BytesIO()
         np.save(buf, seed_surface_points(world, cfg.surface_samples_per_seed, np.random.default_rng(s_surf)))
         atomic_write_bytes(tmp / "gt" / "surface_points.npy", buf.getvalue())
