@@ -141,3 +141,54 @@ def test_arm_fraction_sets_the_share_of_arm_scan_crops():
     assert 0.42 < arm.mean() < 0.58
     X, *_ = crop_batch(ims, 400, 48, np.random.default_rng(0), seed_fraction=1.0, augment=False)
     assert np.isclose(X.max(axis=(1, 2, 3)), 100 / 255).mean() < 0.3
+
+
+def _sliver_crop(spec: CropSpec):
+    """A crop holding the whole 2x3 sliver (area 6: ignored by the heatmap, box-trained) and not the seed."""
+    im = _one_seed_image()
+    im2 = TrainImage(im.rgb, im.inst, im.boxes, im.kp, im.centers[1:], im.area)
+    for seed in range(20):
+        X, H, R, M, IG = crop_batch([im2], 1, 96, np.random.default_rng(seed), seed_fraction=1.0, augment=False,
+                                    spec=CropSpec(scale_prob=0.0))
+        if (M[0] > 0).sum() == 6:
+            return crop_batch([im2], 1, 96, np.random.default_rng(seed), seed_fraction=1.0, augment=False, spec=spec)
+    raise AssertionError("no crop with the whole sliver")
+
+
+def test_peak_box_radius_trains_the_sliver_box_around_its_peak():
+    """peak_box_radius=1: the 3x3 window around the sliver's peak pixel, which inference reads, gets the sliver's
+    box (3 x 2 px) and keypoint as targets also outside its 6-px mask; radius 0 trains the mask pixels only."""
+    _, _, R0, M0, _ = _sliver_crop(CropSpec(scale_prob=0.0))
+    _, _, R1, M1, _ = _sliver_crop(CropSpec(scale_prob=0.0, peak_box_radius=1))
+    m0, m1 = M0[0] > 0, M1[0] > 0
+    assert m0.sum() == 6 and m1.sum() == 9 and (m1 & m0).sum() == 6  # 3x3 window over a 3x2 sliver: 3 more px
+    ys, xs = np.nonzero(m1 & ~m0)
+    assert np.allclose(R1[0, 0, ys, xs] + R1[0, 2, ys, xs], 3.0) and np.allclose(R1[0, 1, ys, xs] + R1[0, 3, ys, xs], 2.0)
+    ky, kx = ys + R1[0, 5, ys, xs], xs + R1[0, 4, ys, xs]
+    y0, x0 = np.nonzero(m0)
+    assert np.allclose(kx, x0[0] + R0[0, 4, y0[0], x0[0]]) and np.allclose(ky, y0[0] + R0[0, 5, y0[0], x0[0]])
+    assert np.array_equal(R1[0][:, m0], R0[0][:, m0])  # the mask pixels' own targets are unchanged
+
+
+def test_sliver_box_weight_and_sliver_neg_weight():
+    """sliver_box_weight=4 weighs the sliver's box pixels 5x (a seed's stay 1); sliver_neg_weight=0.25 turns the
+    sliver's heat pixels from ignored into 0.25-weighted background, so a high heat there now costs loss."""
+    torch = pytest.importorskip("torch")
+    from seedmap.detect.train_cnn import losses
+
+    _, _, _, Mw, _ = _sliver_crop(CropSpec(scale_prob=0.0, sliver_box_weight=4.0))
+    assert np.allclose(Mw[0][Mw[0] > 0], 5.0) and (Mw[0] > 0).sum() == 6
+    im = _one_seed_image(sliver_area=1.0)
+    _, _, _, Ms, _ = crop_batch([im], 1, 96, np.random.default_rng(1), seed_fraction=1.0, augment=False,
+                                spec=CropSpec(scale_prob=0.0, sliver_box_weight=4.0))
+    assert np.allclose(Ms[0][Ms[0] > 0], 1.0)  # a whole seed is no sliver
+    X, H, R, M, IG0 = _sliver_crop(CropSpec(scale_prob=0.0))
+    _, _, _, _, IGn = _sliver_crop(CropSpec(scale_prob=0.0, sliver_neg_weight=0.25))
+    sl = M[0] > 0
+    assert np.allclose(IG0[0][sl], 1.0) and np.allclose(IGn[0][sl], 0.75)
+    out = torch.zeros(1, 7, 96, 96)
+    out[:, 0] = -8.0
+    out[0, 0][torch.from_numpy(sl)] = 2.0  # the network fires on the sliver
+    f0 = float(losses(out, *(torch.from_numpy(a) for a in (H, R, M, IG0)))[1])
+    fn = float(losses(out, *(torch.from_numpy(a) for a in (H, R, M, IGn)))[1])
+    assert f0 < 0.01 and fn > 10 * max(f0, 1e-3)

@@ -210,6 +210,14 @@ class CropSpec:
     #: fraction of the crops rescaled by a factor drawn uniformly from ``scale_range``
     scale_prob: float = 0.0
     scale_range: tuple[float, float] = (0.8, 1.7)
+    #: > 0: box/offset targets also on the untrained pixels of the (2r+1)^2 window around every instance's peak
+    #: (slivers included), where inference reads the box (0 = mask pixels only, session 4)
+    peak_box_radius: int = 0
+    #: box/offset loss weight of a sliver pixel (min_area <= area < heat_min_area) = 1 + this (0 = like a seed's)
+    sliver_box_weight: float = 0.0
+    #: heatmap loss on ignored sliver pixels: weight of the background (negative) term there (0 = ignored,
+    #: session 4; 1 = plain background)
+    sliver_neg_weight: float = 0.0
 
 
 def _render_heat(size: int, kp: np.ndarray, sigma: np.ndarray, out: np.ndarray) -> None:
@@ -292,6 +300,15 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
         reg[4][m] = kp[ii, 0] - gx
         reg[5][m] = kp[ii, 1] - gy
         near = ((kp[:, 0] > -4) & (kp[:, 0] < size + 4) & (kp[:, 1] > -4) & (kp[:, 1] < size + 4))
+        own = None
+        if sp.peak_box_radius > 0 or sp.sliver_box_weight > 0:
+            own = np.where(m, idx, -1)
+        if sp.peak_box_radius > 0:
+            _peak_box_targets(reg, m, own, kp, bx, near & (area >= sp.min_area), area, int(sp.peak_box_radius))
+        wgt = m.astype(np.float32)
+        if sp.sliver_box_weight > 0:
+            is_sliv = area < sp.heat_min_area
+            wgt[own >= 0] *= np.where(is_sliv[own[own >= 0]], 1.0 + sp.sliver_box_weight, 1.0).astype(np.float32)
         pos = near & (area >= sp.heat_min_area)
         sig = sp.heat_sigma * np.maximum(1.0, np.sqrt(np.maximum((bx[:, 2] - bx[:, 0]) * (bx[:, 3] - bx[:, 1]), 0)) / 5)
         heat = np.zeros((size, size), np.float32)
@@ -311,6 +328,7 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
                 heat = heat[:, ::-1]
                 ign = ign[:, ::-1]
                 m = m[:, ::-1]
+                wgt = wgt[:, ::-1]
                 # mirrored column x' = S-1-x; inclusive/exclusive edges: l' = r - 1, r' = l + 1
                 reg = reg[:, :, ::-1][[2, 1, 0, 3, 4, 5]]
                 reg[0] -= 1.0
@@ -320,9 +338,49 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
         X[k] = rgb.transpose(2, 0, 1)
         H[k] = heat
         R[k] = reg
-        M[k] = m
-        IG[k] = ign
+        M[k] = wgt
+        IG[k] = ign * (1.0 - sp.sliver_neg_weight) if sp.sliver_neg_weight > 0 else ign
     return X, H, R, M, IG
+
+
+def _peak_box_targets(reg: np.ndarray, m: np.ndarray, own: np.ndarray, kp: np.ndarray, bx: np.ndarray,
+                      cand: np.ndarray, area: np.ndarray, radius: int) -> None:
+    """Box/offset targets (in place) on the pixels of the ``(2 radius + 1)^2`` window around every candidate
+    instance's peak pixel (rounded keypoint) that belong to no trained mask: inference reads the box at the
+    peak and its 3x3 neighbours (cnn.decode), and on a sliver or a thin, partly hidden seed most of those lie
+    outside the mask, so without targets there they predict a whole-seed box. Where windows overlap the
+    smaller instance wins; ``m`` and ``own`` (instance per pixel) are updated."""
+    size = m.shape[0]
+    ids = np.flatnonzero(cand)
+    if len(ids) == 0:
+        return
+    ids = ids[np.argsort(-area[ids], kind="stable")]  # largest first: the smallest is written last
+    c = np.round(kp[ids]).astype(np.int64)
+    d = np.arange(-radius, radius + 1)
+    dy, dx = (a.ravel() for a in np.meshgrid(d, d, indexing="ij"))
+    ins = np.repeat(ids, len(dx))
+    x = (c[:, 0:1] + dx[None]).ravel()
+    y = (c[:, 1:2] + dy[None]).ravel()
+    ok = (x >= 0) & (x < size) & (y >= 0) & (y < size)
+    ins, x, y = ins[ok], x[ok], y[ok]
+    ok = ~m[y, x]
+    ins, x, y = ins[ok], x[ok], y[ok]
+    if len(ins) == 0:
+        return
+    pix = y * size + x
+    _, last = np.unique(pix[::-1], return_index=True)
+    sel = len(pix) - 1 - last  # last occurrence of every pixel = the smallest instance there
+    ins, x, y = ins[sel], x[sel], y[sel]
+    gx, gy = x.astype(np.float32), y.astype(np.float32)
+    b = bx[ins]
+    reg[0][y, x] = gx - b[:, 0]
+    reg[1][y, x] = gy - b[:, 1]
+    reg[2][y, x] = b[:, 2] - gx
+    reg[3][y, x] = b[:, 3] - gy
+    reg[4][y, x] = kp[ins, 0] - gx
+    reg[5][y, x] = kp[ins, 1] - gy
+    m[y, x] = True
+    own[y, x] = ins
 
 
 def losses(out, heat, reg, mask, ignore=None, iou_weight: float = 0.0,  # noqa: ANN001, ANN201 - torch tensors
@@ -397,6 +455,11 @@ class CnnTrainConfig:
     scale_prob: float = 0.5
     scale_lo: float = 0.8
     scale_hi: float = 1.7
+    #: session 7, opt-in (CropSpec): box targets on the peak window of every instance (radius px), extra box weight
+    #: of sliver pixels, background weight of the heatmap on slivers (0 / 0 / 0 = session 4)
+    peak_box_radius: int = 0
+    sliver_box_weight: float = 0.0
+    sliver_neg_weight: float = 0.0
     #: start from the weights of this fast_cnn ONNX file (fine-tuning; its channels replace c1/c2) instead of a
     #: random initialisation
     init_weights: str | None = None
@@ -520,7 +583,8 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
             fr_va[str(d)] = [n - 1]
         tr = load_training_images(train_sets, fr_tr, 1, progress)
         va = load_training_images(train_sets, fr_va, 1, progress)
-    spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
+    spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi),
+                    cfg.peak_box_radius, cfg.sliver_box_weight, cfg.sliver_neg_weight)
     vrng = np.random.default_rng(cfg.seed + 1)
     w_tr, w_va = image_weights(tr, cfg.arm_fraction), image_weights(va, cfg.arm_fraction)
     vbatch = [torch.from_numpy(np.ascontiguousarray(a))
