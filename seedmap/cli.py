@@ -281,6 +281,13 @@ def train_fast_cnn_cmd(
     init: Optional[Path] = typer.Option(None, "--init", help="Start from these fast_cnn .onnx weights "
                                                               "(fine-tuning) instead of a random initialisation."),
     lr: float = typer.Option(2e-3, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
+    peak_box_radius: int = typer.Option(0, "--peak-box-radius",
+                                        help="Also train the box on the (2r+1)^2 window around every seed's and "
+                                             "sliver's peak, outside its mask (0 = mask pixels only)."),
+    sliver_box_weight: float = typer.Option(0.0, "--sliver-box-weight",
+                                            help="Box/offset loss weight of a sliver pixel = 1 + this."),
+    sliver_neg_weight: float = typer.Option(0.0, "--sliver-neg-weight",
+                                            help="Heatmap background weight on slivers (0 = ignored, 1 = background)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
@@ -299,7 +306,8 @@ def train_fast_cnn_cmd(
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
                          iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
                          box_center_weight=box_center_weight, arm_fraction=arm_fraction, lr=lr,
-                         init_weights=str(init) if init else None)
+                         init_weights=str(init) if init else None, peak_box_radius=peak_box_radius,
+                         sliver_box_weight=sliver_box_weight, sliver_neg_weight=sliver_neg_weight)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "
