@@ -594,6 +594,9 @@ def simulate_panicle_cmd(
     out: Path = typer.Option(..., "--out", "-o", help="Dataset folder to create."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (panicle, arm errors, image noise)."),
     views: Optional[int] = typer.Option(None, "--views", help="Number of views around the panicle (default 36)."),
+    exposure: Optional[str] = typer.Option(
+        None, "--exposure", help="auto (default: exposed for the scan's stand-off) or a gain factor; 1.0 = the "
+                                 "flash-saturated field gain of the scans of sessions 1-6."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset folder."),
@@ -608,6 +611,8 @@ def simulate_panicle_cmd(
         extra.append(f"seed={seed}")
     if views is not None:
         extra.append(f"arm.views={views}")
+    if exposure is not None:
+        extra.append(f"exposure={exposure}")
     cfg = load_config(PanicleScanConfig, config, extra)
     path = simulate_panicle(cfg, out, overwrite=overwrite, progress=not quiet)
     typer.echo(f"wrote {path}")

@@ -83,7 +83,7 @@ def test_numeric_exposure_and_bad_values():
 def test_cli_bad_exposure_fails_with_one_line(tmp_path):
     out = tmp_path / "scan"
     r = subprocess.run([sys.executable, "-m", "seedmap.cli", "simulate", "panicle", "--out", str(out),
-                        "--set", "exposure=0", "--quiet"], capture_output=True, text=True, timeout=120)
+                        "--exposure", "0", "--quiet"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2, r.stderr
     assert "exposure" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not out.exists()
