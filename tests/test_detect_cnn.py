@@ -119,33 +119,30 @@ def test_scale_finds_seeds_rendered_twice_as_large(small):
     assert d2.boxes[:, 2].max() <= big.shape[1] and d2.boxes[:, 3].max() <= big.shape[0]
 
 
-def test_arm_network_puts_one_keypoint_on_arm_scan_seeds(tmp_path):
-    """``cnn.domain=arm`` (the panicle reconstruction's setting): on a close-up arm scan of an unseen,
-    flash-saturated panicle (seed 144, 3 views, ~3 s) the field network puts >= 2 keypoints on about half of
-    the seeds; the arm-scan network on about a sixth, and on more seeds exactly one."""
+def test_arm_network_detects_arm_scan_seeds_better(tmp_path):
+    """``cnn.domain=arm`` (the panicle reconstruction's setting, threshold 0.4): on a close-up arm scan of an
+    unseen panicle (seed 144, 3 views, ~3 s; exposed for the 0.3 m stand-off, the session-7 default) the arm-scan
+    network finds the seeds' boxes better than the field network. (Until session 6 the scans were flash-saturated
+    and the field network put >= 2 keypoints on about half of the seeds; at the realistic exposure both put
+    >= 2 on about a tenth, and the difference is in precision and recall.)"""
+    from seedmap.detect.config import min_visible_seed_px
+    from seedmap.eval.detect_metrics import evaluate_detections
     from seedmap.sim.arm import ArmConfig
     from seedmap.sim.panicle_scan import PanicleScanConfig, simulate_panicle
 
     ds = SeedmapDataset(simulate_panicle(PanicleScanConfig(seed=144, arm=ArmConfig(views=3)), tmp_path / "p",
                                          progress=False))
     field = make_detector("fast")
-    arm = make_detector("fast", overrides=["cnn.domain=arm", "cnn.threshold=0.35"])
+    arm = make_detector("fast", overrides=["cnn.domain=arm", "cnn.threshold=0.4"])
     assert field.path.name == "fast_cnn.onnx" and arm.path.name == "fast_cnn_arm.onnx"
     assert arm.path.stat().st_size < 5e6
-    hits = {}
+    m = {}
     for name, det in (("field", field), ("arm", arm)):
-        one = two = n = 0
-        for i in range(len(ds)):
-            lab, inst = ds.gt_label_image(i, "left"), ds.gt_instances(i, "left")
-            kp = np.round(det.detect(ds[i].left).keypoints).astype(int)
-            kp = np.clip(kp, 0, [lab.shape[1] - 1, lab.shape[0] - 1])
-            per_seed = np.bincount(lab[kp[:, 1], kp[:, 0]].astype(np.int64), minlength=int(lab.max()) + 1)
-            c = per_seed[inst.label[inst.area >= 12]]  # the counting reference's seed size
-            one, two, n = one + (c == 1).sum(), two + (c >= 2).sum(), n + len(c)
-        hits[name] = (one / n, two / n)
-    # measured: field 0.25 / 0.49, arm 0.56 / 0.17 (exactly one / two or more keypoints per seed)
-    assert hits["field"][1] > 0.35 and hits["arm"][1] < 0.25, hits
-    assert hits["arm"][0] > hits["field"][0] + 0.2, hits
+        dets = {(i, "left"): det.detect(ds[i].left) for i in range(len(ds))}
+        m[name] = evaluate_detections(ds, dets, 0.5, "greedy", min_visible_seed_px(ds.calib.width))
+    # measured (session-7 arm network): field P 0.62 / R 0.43 / F1 0.51, arm 0.83 / 0.53 / 0.64
+    assert m["arm"].f1 > m["field"].f1 + 0.08, (m["arm"].f1, m["field"].f1)
+    assert m["arm"].precision > m["field"].precision + 0.1 and m["arm"].recall > m["field"].recall
 
 
 def test_training_can_start_from_shipped_weights(small, tmp_path):

@@ -269,13 +269,13 @@ def test_detector_profiles_are_applied_once_and_can_be_switched_off():
 
 
 def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
-    """Session 6: the pipeline's detector overrides select the CNN's arm-scan weights (threshold 0.35) while
+    """Session 6: the pipeline's detector overrides select the CNN's arm-scan weights (threshold 0.4 since session 7) while
     plain ``fast`` keeps the field network; ``fast`` and ``fast-cnn`` count with twice the pixel tolerances."""
     from seedmap.detect import make_detector
 
     rc = ReconConfig(detector="fast")
     det = make_detector(rc.detector, overrides=list(rc.detector_overrides))
-    assert det.path.name == "fast_cnn_arm.onnx" and det.cfg.threshold == 0.35
+    assert det.path.name == "fast_cnn_arm.onnx" and det.cfg.threshold == 0.4
     assert make_detector("fast").path.name == "fast_cnn.onnx"
     plain = CountConfig()
     for name in ("fast", "fast-cnn"):

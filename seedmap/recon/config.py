@@ -225,9 +225,9 @@ class ReconConfig(ConfigModel):
     seed: int = 0
     detector: str = Field("gt", description="detector name (gt = ground-truth ORACLE on simulated data)")
     detector_overrides: list[str] = Field(default_factory=lambda: ["gt.min_area_px=12", "cnn.domain=arm",
-                                                                  "cnn.threshold=0.35"],
+                                                                  "cnn.threshold=0.4"],
                                           description="key=value overrides of the detector config (the CNN "
-                                                      "of `fast` runs its arm-scan network, session 6); setting "
+                                                      "of `fast` runs its arm-scan network, session 6, retrained on auto-exposed arm scans in session 7, threshold chosen on validation panicles 140-141); setting "
                                                       "this list replaces all three defaults, so keep the ones "
                                                       "you want")
     sgbm: SgbmConfig = Field(default_factory=SgbmConfig)
