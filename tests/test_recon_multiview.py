@@ -262,7 +262,7 @@ def test_detector_profiles_are_applied_once_and_can_be_switched_off():
     gt = cfg.for_detector("gt")
     assert gt.mv_link_joint and not gt.detector_profile and gt.mv_link_px == 1.5
     assert gt.for_detector("gt") is gt  # applied once
-    assert cfg.for_detector("fast").mv_merge_px == 3.0
+    assert cfg.for_detector("fast").mv_scale_ref_px == 6.0
     assert cfg.for_detector("some-new-detector") is cfg
     assert not CountConfig(detector_profile=False).for_detector("gt").mv_link_joint
     assert ReconConfig(detector="gt").count.for_detector("gt").mv_link_joint
@@ -270,7 +270,7 @@ def test_detector_profiles_are_applied_once_and_can_be_switched_off():
 
 def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
     """Session 6: the pipeline's detector overrides select the CNN's arm-scan weights (threshold 0.4 since session 7) while
-    plain ``fast`` keeps the field network; ``fast`` and ``fast-cnn`` count with twice the pixel tolerances."""
+    plain ``fast`` keeps the field network; ``fast`` and ``fast-cnn`` count with twice the pixel tolerances (scaled with the seed size since session 7)."""
     from seedmap.detect import make_detector
 
     rc = ReconConfig(detector="fast")
@@ -282,4 +282,5 @@ def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
         c = rc.count.for_detector(name)
         assert c.mv_stereo_dv_px == 2 * plain.mv_stereo_dv_px and c.mv_link_px == 2 * plain.mv_link_px
         assert c.mv_max_reproj_px == 2 * plain.mv_max_reproj_px and c.mv_grow_px == 2 * plain.mv_grow_px
-        assert c.mv_merge_px == 3.0 and c.mv_dedupe_shared == 0.6
+        assert c.mv_merge_px == 0.0 and c.mv_dedupe_shared == 0.4 and c.mv_min_support == 0.5
+        assert c.mv_scale_ref_px == 6.0 and c.mv_scale_power == 1.5
