@@ -84,10 +84,12 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
 **Detector profiles.** ``CountConfig.detector_profiles`` holds key=value overrides per detector name
 that the pipeline and ``seedmap count`` apply on top of the count settings
 (:meth:`CountConfig.for_detector`; ``count.detector_profile=false`` turns them off): ``gt`` joint
-links at 1.5 px; ``fast`` merges keypoints closer than 3 px first, joins tracks sharing views
-within 0.6 diameters and (session 6, with the arm-scan network ``cnn.domain=arm`` that the pipeline
-selects) doubles the row, link, reprojection and growing tolerances; ``fast-classic`` joins them within
-1.0 diameter; ``gt`` also scales its pixel tolerances with the seed size (step 0a, session 5). Chosen on
+links at 1.5 px; ``fast`` (with the arm-scan network ``cnn.domain=arm`` that the pipeline selects)
+doubles the row, link, reprojection and growing tolerances (session 6) and, since session 7 (arm scans
+exposed for their stand-off), scales them with the seed size like ``gt`` (reference 6 px), joins tracks
+sharing views within 0.4 diameters, accepts stereo matches with support 0.5 and no longer merges
+keypoints; ``fast-classic`` joins them within 1.0 diameter; ``gt`` scales its pixel tolerances with the
+seed size (step 0a, session 5). Chosen on
 the tuning panicles 95-100 (and 111-115 since session 5) only (seedmap.recon.config.DETECTOR_PROFILES).
 A detector without a profile gets the plain settings.
 
