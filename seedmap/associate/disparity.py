@@ -113,3 +113,75 @@ def patch_ncc(desc_a: np.ndarray, desc_b: np.ndarray, ia: np.ndarray, ib: np.nda
     if len(ia) == 0:
         return np.zeros(0)
     return np.einsum("ij,ij->i", desc_a[ia], desc_b[ib]).astype(np.float64)
+
+
+def colour_descriptors(image: np.ndarray, kp: np.ndarray, size: int) -> np.ndarray:
+    """Colour patches ``(N, 3 * size * size)`` float32 around the keypoints: each RGB channel
+    zero-mean and unit-norm (:func:`patch_descriptors`), concatenated and scaled to unit norm, so the
+    dot product is the mean of the three channels' NCCs.
+
+    Why (session 7): a seed and its neighbour look alike in grey, but the leaves behind them are
+    green and the panicles differ in colour (white, tan, red, brown), which grey NCC cannot see."""
+    img = np.asarray(image)
+    kp = np.asarray(kp, np.float64).reshape(-1, 2)
+    if img.ndim != 3:
+        img = img[..., None]
+    parts = [patch_descriptors(np.ascontiguousarray(img[..., c]), kp, size) for c in range(img.shape[2])]
+    out = np.concatenate(parts, 1)
+    out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-6)
+    return out
+
+
+def mean_colour(image: np.ndarray, kp: np.ndarray, radius: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Chromaticity ``(N, 3)`` (RGB / (R + G + B)) and brightness ``(N,)`` (R + G + B, 0..765) of the
+    ``(2 radius + 1)^2`` box around each keypoint (rounded position). Only the pixels read are
+    averaged (no full-image filter)."""
+    img = np.asarray(image)
+    kp = np.asarray(kp, np.float64).reshape(-1, 2)
+    if img.ndim != 3:
+        img = np.repeat(img[..., None], 3, 2)
+    h, w = img.shape[:2]
+    if len(kp) == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    offs = np.arange(-radius, radius + 1)
+    xs = np.clip(np.round(kp[:, 0]).astype(int)[:, None] + offs[None], 0, w - 1)
+    ys = np.clip(np.round(kp[:, 1]).astype(int)[:, None] + offs[None], 0, h - 1)
+    c = img[ys[:, :, None], xs[:, None, :], :3].reshape(len(kp), -1, 3).astype(np.float64).mean(1)
+    b = c.sum(1)
+    return c / np.maximum(b, 1.0)[:, None], b
+
+
+def disparity_edge_range(disp: np.ndarray, kp: np.ndarray, half: int) -> np.ndarray:
+    """Range (max - min, image px) of the valid dense disparities on the keypoint's row within
+    ``half`` px left and right of it; 0 where fewer than one valid value. Large at depth edges,
+    where SGBM's disparity of a seed may be the occluder's (foreground fattening)."""
+    kp = np.asarray(kp, np.float64).reshape(-1, 2)
+    if len(kp) == 0:
+        return np.zeros(0)
+    h, w = disp.shape
+    y = np.clip(np.round(kp[:, 1]).astype(int), 0, h - 1)
+    xs = np.clip(np.round(kp[:, 0]).astype(int)[:, None] + np.arange(-half, half + 1)[None], 0, w - 1)
+    d = disp[y[:, None], xs].astype(np.float64)
+    ok = np.isfinite(d)
+    hi = np.where(ok, d, -np.inf).max(1)
+    lo = np.where(ok, d, np.inf).min(1)
+    return np.where(ok.any(1), hi - lo, 0.0)
+
+
+def occlusion_margin(disp: np.ndarray, u: np.ndarray, v: np.ndarray, d: np.ndarray, reach: int) -> np.ndarray:
+    """How far (image px) a nearer surface of the left dense disparity map ``disp`` reaches over
+    the right-image position ``u - d`` of a left point ``(u, v)`` with disparity ``d``:
+    ``max over x in (u, u + reach] of disp(x, v) - d - (x - u)``. Positive: a pixel right of the
+    point in the left image maps to the left of ``u - d`` in the right image while being nearer,
+    so (for a continuous surface) it covers the point there, which is then hidden in the right view
+    (its partner cannot be a right keypoint at ``u - d``). ``-inf`` where no valid disparity."""
+    u = np.asarray(u, np.float64)
+    if len(u) == 0:
+        return np.zeros(0)
+    h, w = disp.shape
+    y = np.clip(np.round(np.asarray(v, np.float64)).astype(int), 0, h - 1)
+    xs = np.round(u).astype(int)[:, None] + np.arange(1, int(reach) + 1)[None]
+    dd = disp[y[:, None], np.clip(xs, 0, w - 1)].astype(np.float64)
+    val = dd - np.asarray(d, np.float64)[:, None] - (xs - u[:, None])
+    val = np.where(np.isfinite(val) & (xs < w), val, -np.inf)
+    return val.max(1)
