@@ -35,6 +35,8 @@ box-IoU non-maximum suppression of the peaks (cv2.dnn.NMSBoxes at IoU 0.3 / 0.4 
 0.900 / 0.899), a constant added to all four predicted edges before rounding (+-0.1 px: 0.897 / 0.887), a
 higher threshold for small predicted boxes (no change: false positives on slivers get whole-seed-sized
 boxes), threshold 0.5 (0.901 on det_s36 but 0.880 vs 0.883 on the second validation range det_s45).
+Session 7: ``smooth`` 0 / 1 / 16 instead of 4: det_s36 F1 0.895 / 0.896 / 0.896 vs 0.898 (a sliver's peak pixel
+itself predicts the too-large box; ``benchmarks/detect_errors.py --set cnn.smooth=S``).
 """
 
 from __future__ import annotations
