@@ -32,6 +32,13 @@ re-tuned ``fast`` count profile; tuned on 95-99 + 111-115 with ``--detector-set 
 ... 115`` / ``100 101 ... 110`` / ``100 116 ... 125 --detectors fast --modes seeds --tag s6``;
 ``..._{gt,fast-classic,fast}_s6_fresh3.json`` = the panicles 150-159 rendered after the freeze and run once
 (``--eval 100 150 ... 159 --detectors gt fast-classic fast --modes seeds --tag fresh6``).
+Session 7 (arm scans rendered with the exposure set for the 0.3 m stand-off, ``PanicleScanConfig.exposure="auto"``,
+into ``--data-dir data/recon_s7``; results in ``results/recon_eval_bench/DETECTOR_recon_s7_TAG``):
+``..._{gt,fast,fast-classic}_s7_{tuning,heldout,heldout2,fresh3,fresh4}.json`` = ``--eval 100 95 ... 99 111 ... 115``
+(tag ``s7tune``) / ``100 101 ... 110`` / ``100 116 ... 125`` / ``100 150 ... 159`` / ``100 160 ... 169`` (rendered
+this session, run once after the freeze) ``--modes seeds --data-dir data/recon_s7``; ``..._gt_s7_heldout.json`` also
+holds the fk / full / seeds registration modes. ``bench_recon_s7.json``: the speed run (``--out``) on a scan
+simulated with the auto exposure.
 """
 
 from __future__ import annotations
