@@ -71,8 +71,9 @@ def test_scale_factor_is_clipped_applied_once_and_checks_its_keys():
         scaled_tolerances(kp, cfg.model_copy(update={"mv_scale_keys": ["min_observations"]}))
 
 
-def test_gt_profile_scales_with_the_seed_size_and_the_detectors_do_not():
+def test_gt_and_fast_profiles_scale_with_the_seed_size_and_fast_classic_does_not():
+    """(session 7: on auto-exposed arm scans the arm network's boxes follow the seed size, so ``fast`` scales too)"""
     cfg = CountConfig()
     assert cfg.for_detector("gt").mv_scale_ref_px == 7.0
-    assert cfg.for_detector("fast").mv_scale_ref_px == 0.0
+    assert cfg.for_detector("fast").mv_scale_ref_px == 6.0 and cfg.for_detector("fast").mv_scale_power == 1.5
     assert cfg.for_detector("fast-classic").mv_scale_ref_px == 0.0
