@@ -117,6 +117,11 @@ def test_colour_cues_tell_a_green_leaf_from_a_tan_seed_that_grey_cannot():
     # ... and the grey NCC of the two cannot tell them apart either (same texture), the chromaticity can
     assert patch_ncc(patch_descriptors(tan, kp, 11), patch_descriptors(green, kp, 11), [0], [0])[0] > 0.95
     assert np.abs(c_tan - c_green).sum() > 0.2
+    # the colour descriptor is the three channels' grey descriptors side by side, scaled to unit norm
+    kp2 = np.array([[30.0, 30.0], [12.4, 40.7], [0.2, 59.6]])
+    per = np.concatenate([patch_descriptors(np.ascontiguousarray(tan[..., c]), kp2, 7) for c in range(3)], 1)
+    assert np.allclose(colour_descriptors(tan, kp2, 7), per / np.linalg.norm(per, axis=1, keepdims=True), atol=1e-6)
+    assert colour_descriptors(tan, np.zeros((0, 2)), 7).shape == (0, 147)
 
 
 def _tiny_model(features: tuple[str, ...], seed: int = 0) -> ScoreModel:

@@ -95,12 +95,25 @@ def patch_descriptors(image: np.ndarray, kp: np.ndarray, size: int) -> np.ndarra
     a = np.asarray(image)
     if a.ndim == 3:
         a = cv2.cvtColor(np.ascontiguousarray(a[..., :3]).astype(np.uint8, copy=False), cv2.COLOR_RGB2GRAY)
+    return _normalised(_raw_patches(a, kp, size).reshape(len(kp), -1))
+
+
+def _raw_patches(a: np.ndarray, kp: np.ndarray, size: int) -> np.ndarray:
+    """Bilinear samples ``(N, size, size[, C])`` of image ``a`` on the ``size x size`` px grid centred
+    on each keypoint (one ``cv2.remap``; borders reflected)."""
+    import cv2
+
     r = np.arange(size, dtype=np.float64) - (size - 1) / 2.0
     dx, dy = np.meshgrid(r, r)
     mx = (kp[:, :1] + dx.reshape(1, -1)).astype(np.float32)
     my = (kp[:, 1:2] + dy.reshape(1, -1)).astype(np.float32)
     out = cv2.remap(np.ascontiguousarray(a), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    out = out.reshape(len(kp), -1).astype(np.float32)
+    return out.reshape(len(kp), size, size, *out.shape[2:])
+
+
+def _normalised(out: np.ndarray) -> np.ndarray:
+    """Rows zero-mean and unit-norm (float32; a constant row becomes zeros)."""
+    out = np.ascontiguousarray(out).astype(np.float32)
     out -= out.mean(1, keepdims=True)
     norm = np.linalg.norm(out, axis=1, keepdims=True)
     out /= np.where(norm > 1e-6, norm, 1.0)
@@ -124,9 +137,13 @@ def colour_descriptors(image: np.ndarray, kp: np.ndarray, size: int) -> np.ndarr
     green and the panicles differ in colour (white, tan, red, brown), which grey NCC cannot see."""
     img = np.asarray(image)
     kp = np.asarray(kp, np.float64).reshape(-1, 2)
+    size = max(1, int(size))
     if img.ndim != 3:
         img = img[..., None]
-    parts = [patch_descriptors(np.ascontiguousarray(img[..., c]), kp, size) for c in range(img.shape[2])]
+    if len(kp) == 0:
+        return np.zeros((0, img.shape[2] * size * size), np.float32)
+    raw = _raw_patches(img, kp, size).reshape(len(kp), size * size, -1)  # one remap of all channels
+    parts = [_normalised(raw[:, :, c]) for c in range(raw.shape[2])]
     out = np.concatenate(parts, 1)
     out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-6)
     return out
