@@ -10,7 +10,10 @@ Writes benchmarks/results/bench_slam.json:
   its stereo time contains the SGBM run on the drawn stereo pair, the search range coming from the
   previous frame) and its session-6 variant (``learned`` = sgbm + ``prior_score="learned"`` +
   ``temporal_min_ncc=0.3``: the patch descriptors of both images are part of its stereo time, the
-  temporal NCC check of its temporal time), on synthetic panicles at the default 1434 px width;
+  temporal NCC check of its temporal time) and its session-7 variant (``mlp`` = sgbm +
+  ``prior_score="mlp"`` + ``temporal_min_ncc=0.3``: the cues of both images - three grey patch
+  sizes, colour patches, mean colour - are part of its stereo time), on synthetic panicles at the
+  default 1434 px width;
 * frames/s of association + motion + back-end (iSAM2) per frame on a short synthetic sequence;
 * the baseline measured in the same run: one SIFT detection + brute-force kNN match (cv2) of the
   same stereo pair (seeds drawn as blobs); results are reported as ratios to it.
@@ -124,14 +127,14 @@ def main() -> None:
     t_sift, c_sift = _time2(sift_match, reps)
     res = {"machine": platform.processor() or platform.machine(), "image": [calib.width, calib.height],
            "baseline_sift_bf_stereo_s": t_sift, "baseline_sift_bf_stereo_cpu_s": c_sift, "association": []}
-    for mode in ("none", "consensus", "field", "loop", "sgbm", "learned"):
+    for mode in ("none", "consensus", "field", "loop", "sgbm", "learned", "mlp"):
         loop = mode == "loop"
-        dense = mode in ("sgbm", "learned")
-        cfg = SemanticConfig(refine="field" if mode in ("loop", "sgbm", "learned") else mode,
+        dense = mode in ("sgbm", "learned", "mlp")
+        cfg = SemanticConfig(refine="field" if mode in ("loop", "sgbm", "learned", "mlp") else mode,
                              temporal_prediction=mode != "none", stereo_carry=loop,
                              stereo_prior="sgbm" if dense else "none",
-                             prior_score="learned" if mode == "learned" else "residual",
-                             temporal_min_ncc=0.3 if mode == "learned" else -1.0)
+                             prior_score=mode if mode in ("learned", "mlp") else "residual",
+                             temporal_min_ncc=0.3 if mode in ("learned", "mlp") else -1.0)
         for n in (500, 1000, 2000):
             a, b = _subsample(d0, n, np.random.default_rng(n)), _subsample(d1, n, np.random.default_rng(n + 1))
             pre = _subsample(dm1, n, np.random.default_rng(n + 2))
