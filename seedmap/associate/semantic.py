@@ -185,7 +185,7 @@ oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stay
   ``mlp_min_logit`` 1.0, ``mlp_margin`` 1.0). Weights: ``weights/stereo_score_s7.json``, fitted by
   ``benchmarks/fit_assoc_score.py`` on the gt-oracle candidates of seeds 3, 11, 16, 17, 18 and 19
   (never 13-15). Why: the learned score's wrong pairs on seed 11 are mostly cross-occlusions (a
-  seed seen only in the left view paired with a neighbour seen only in the right one, where SGBM
+  seed seen only in the left view paired with a neighbour at nearly the same depth, where SGBM
   gave the left seed its occluder's disparity, 5.9 px too large, median); no single cue separates
   them (the occlusion margin alone drops 3 % of the true pairs for 11 % of the wrong ones), the
   network over all of them does. The threshold 1.0 is the one of {0, 0.5, 1, 1.5, 2} at which
@@ -1147,9 +1147,10 @@ def mlp_prior_assign(kl: np.ndarray, kr: np.ndarray, width: int, gates: GateConf
     Why: the session-6 logistic score of five cues left 1.6 % wrong pairs and 11 % of the gated
     true pairs unmatched on the seed-11 range. Its wrong pairs are mostly *cross-occlusions*: a
     seed seen only in the left image (its right view hidden by a nearer seed or leaf, or a sliver
-    the detector does not emit) paired with a neighbour seen only in the right image, at the
-    position SGBM predicts because SGBM gives the left seed the occluder's disparity (median 5.9 px
-    too large there, vs 0.28 px for true pairs). No single cue separates them (the occlusion test
+    the detector does not emit; 61 % of the wrong pairs) paired with a neighbour at nearly the same
+    depth (median true-disparity difference 0.35 px; most of them have no left keypoint themselves),
+    at the position SGBM predicts because SGBM gives the left seed the occluder's disparity (median
+    5.9 px too large there, vs 0.28 px for true pairs). No single cue separates them (the occlusion test
     on the left disparity map alone rejects 3 % of the true pairs for 11 % of the wrong ones), but
     together - appearance at three scales and in colour, depth-edge and occlusion cues, ellipse
     sizes, crowding - a network with two small hidden layers does (candidates of the rendered
