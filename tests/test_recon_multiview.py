@@ -282,5 +282,5 @@ def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
         c = rc.count.for_detector(name)
         assert c.mv_stereo_dv_px == 2 * plain.mv_stereo_dv_px and c.mv_link_px == 2 * plain.mv_link_px
         assert c.mv_max_reproj_px == 2 * plain.mv_max_reproj_px and c.mv_grow_px == 2 * plain.mv_grow_px
-        assert c.mv_merge_px == 0.0 and c.mv_dedupe_shared == 0.4 and c.mv_min_support == 0.5
+        assert c.mv_merge_px == 0.0 and c.mv_dedupe_shared == 0.6 and c.mv_min_support == 0.5
         assert c.mv_scale_ref_px == 6.0 and c.mv_scale_power == 1.5

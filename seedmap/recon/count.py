@@ -24,6 +24,13 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
    ``fast`` 45.7 % -> 11.1 % MAPE with ``mv_merge_px=3`` + ``mv_surface_tol=0.005``; the ``gt``
    detector 7.4 % -> 10.6 %, so it is not the default but part of the ``fast`` detector profile
    (below).
+   ``mv_merge_size`` > 0 scales that radius with the detections' own size (left pairs closer than
+   ``mv_merge_size`` x the smaller of their two sizes; right keypoints x the image's median left
+   size). Session 7b (issue #6, arm network on auto-exposed scans, tuning panicles 95-99 + 111-115):
+   two ``fast`` keypoints on one seed lie 3.5-3.9 px apart (median; 0.45-0.6 of the smaller
+   detection size), keypoints on two different seeds 5-6 px (p5; 0.8-0.9 sizes), so a per-image
+   merge that catches half the duplicates also joins neighbours: ``fast`` MAPE 5.9 % -> 6.4 / 6.7 /
+   8.5 % at 0.3 / 0.4 / 0.5 (the bright panicles lose seeds: 98 -6.0 -> -10.5 %), so it stays off.
 1. **Stereo matches, verified by the neighbours.** In view k every left keypoint may pair with any
    right keypoint on the same row (``mv_stereo_dv_px``) whose disparity lies in the depth range
    (rectified pair: the epipolar line is the row). Each candidate pair triangulates to one 3D
@@ -79,7 +86,11 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
    views: a detector that fires more than once on one seed makes two consistent tracks through the
    same views (on the arm-scan seeds, larger than the row-image seeds the detectors were trained on,
    ~50-60 % of ``fast`` / ``fast-classic`` keypoints have their nearest neighbour on the same seed,
-   2.5-3.9 px away; ``gt`` 4-6 %).
+   2.5-3.9 px away; ``gt`` 4-6 %). Session 7b (issue #6, dark varieties): with the ``fast`` profile's
+   earlier 0.4 diameters, pairs of counted tracks whose left keypoints lie mostly on ONE true seed
+   are 0.63 median diameters apart on the dark panicle 115 (median of 253 such pairs within 1.5
+   diameters; the bright 111: 43 pairs), and joining up to 0.6 diameters takes 163 such pairs against
+   8 pairs of two different seeds on the tuning panicles 96, 98, 111, 114, 115 (0.8: 232 against 69).
 
 **Detector profiles.** ``CountConfig.detector_profiles`` holds key=value overrides per detector name
 that the pipeline and ``seedmap count`` apply on top of the count settings
@@ -87,7 +98,7 @@ that the pipeline and ``seedmap count`` apply on top of the count settings
 links at 1.5 px; ``fast`` (with the arm-scan network ``cnn.domain=arm`` that the pipeline selects)
 doubles the row, link, reprojection and growing tolerances (session 6) and, since session 7 (arm scans
 exposed for their stand-off), scales them with the seed size like ``gt`` (reference 6 px), joins tracks
-sharing views within 0.4 diameters, accepts stereo matches with support 0.5 and no longer merges
+sharing views within 0.6 diameters (0.4 before session 7b), accepts stereo matches with support 0.5 and no longer merges
 keypoints; ``fast-classic`` joins them within 1.0 diameter; ``gt`` scales its pixel tolerances with the
 seed size (step 0a, session 5). Chosen on
 the tuning panicles 95-100 (and 111-115 since session 5) only (seedmap.recon.config.DETECTOR_PROFILES).
@@ -537,8 +548,11 @@ def _neighbour_views(k: int, V: int, max_off: int, circular: bool, both_sides: b
     return out
 
 
-def _merge_components(xy: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]:
-    """Connected components of points (px) closer than ``r``: (label per point, mean position per label)."""
+def _merge_components(xy: np.ndarray, r: float, pair_r: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components of points (px) closer than ``r``: (label per point, mean position per label).
+    ``pair_r`` (one radius per point, px): a pair is joined only when closer than the smaller radius of
+    its two points as well (``r`` is then the largest radius considered)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -546,6 +560,9 @@ def _merge_components(xy: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]
     if n == 0:
         return np.zeros(0, np.int64), np.zeros((0, 2))
     pr = cKDTree(xy).query_pairs(r, output_type="ndarray")
+    if pair_r is not None and len(pr):
+        d = np.linalg.norm(xy[pr[:, 0]] - xy[pr[:, 1]], axis=1)
+        pr = pr[d < np.minimum(pair_r[pr[:, 0]], pair_r[pr[:, 1]])]
     g = coo_matrix((np.ones(len(pr)), (pr[:, 0], pr[:, 1])), shape=(n, n)) if len(pr) else coo_matrix((n, n))
     _, lab = connected_components(g, directed=False)
     cnt = np.bincount(lab)
@@ -553,13 +570,27 @@ def _merge_components(xy: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray]
     return lab.astype(np.int64), mean
 
 
-def merge_close_keypoints(kp: StereoKeypoints, r_px: float) -> tuple[StereoKeypoints, np.ndarray]:
+def merge_close_keypoints(kp: StereoKeypoints, r_px: float, size_factor: float = 0.0
+                          ) -> tuple[StereoKeypoints, np.ndarray]:
     """Joins keypoints of one image closer than ``r_px`` (px; chains join too) into their mean --
     duplicate detections of one seed; touching seeds are about one seed diameter apart, so ``r_px``
-    must stay well below the seed size in pixels. Left sizes and SGBM disparities are averaged
-    (NaN-aware). Returns the merged keypoints and the merged index of every original left keypoint."""
-    lab, left = _merge_components(kp.left, r_px)
-    _, right = _merge_components(kp.right, r_px)
+    must stay well below the seed size in pixels. ``size_factor`` > 0 scales the radius with the
+    detections' own size instead: two left keypoints are joined when closer than ``size_factor`` x
+    the smaller of their two sizes (``left_size``, px), two right keypoints (no sizes of their own)
+    when closer than ``size_factor`` x the image's median left size; ``r_px`` > 0 then caps the radius.
+    Left sizes and SGBM disparities are averaged (NaN-aware). Returns the merged keypoints and the
+    merged index of every original left keypoint."""
+    if size_factor > 0:
+        rl = size_factor * kp.left_size
+        rr = size_factor * float(np.median(kp.left_size)) if len(kp.left_size) else 0.0
+        if r_px > 0:
+            rl, rr = np.minimum(rl, r_px), min(rr, r_px)
+        rmax = float(rl.max()) if len(rl) else 0.0
+        lab, left = _merge_components(kp.left, max(rmax, 1e-9), rl)
+        _, right = _merge_components(kp.right, max(rr, 1e-9))
+    else:
+        lab, left = _merge_components(kp.left, r_px)
+        _, right = _merge_components(kp.right, r_px)
     n = len(left)
     cnt = np.maximum(np.bincount(lab, minlength=n), 1)
     size = np.bincount(lab, weights=kp.left_size, minlength=n) / cnt
@@ -890,12 +921,12 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     if cfg.mv_scale_ref_px > 0:
         # step 0a: pixel tolerances scaled with the seeds' median image size (module docstring)
         cfg = scaled_tolerances(views, cfg)
-    if cfg.mv_merge_px > 0:
+    if cfg.mv_merge_px > 0 or cfg.mv_merge_size > 0:
         # step 0: duplicate detections of one seed (a detector firing twice on it) -> one keypoint
-        merged = [merge_close_keypoints(v, cfg.mv_merge_px) if v is not None else (None, np.zeros(0, np.int64))
-                  for v in views]
-        res = count_multiview([m[0] for m in merged], poses, calib, cfg.model_copy(update={"mv_merge_px": 0.0}),
-                              detail=detail)
+        merged = [merge_close_keypoints(v, cfg.mv_merge_px, cfg.mv_merge_size) if v is not None
+                  else (None, np.zeros(0, np.int64)) for v in views]
+        res = count_multiview([m[0] for m in merged], poses, calib,
+                              cfg.model_copy(update={"mv_merge_px": 0.0, "mv_merge_size": 0.0}), detail=detail)
         cnt = res[0] if detail else res
         n_m = np.array([len(m[0].left) if m[0] is not None else 0 for m in merged], np.int64)
         off_m = np.concatenate([[0], np.cumsum(n_m)])
