@@ -48,15 +48,16 @@ import cv2
 import numpy as np
 
 from seedmap.detect.base import Detector, check_image, map_to_input
-from seedmap.detect.config import CnnConfig, FastConfig
+from seedmap.detect.config import CNN_DEFAULT_THRESHOLD, CnnConfig, FastConfig
 from seedmap.errors import ConfigError, InputError
 from seedmap.records import Detections, StereoDetections, StereoFrame
 
 
 def default_cnn_path(domain: str = "field") -> Path:
     """The shipped network of ``domain`` (``cnn.domain``): ``field`` = trained on the simulated ranges of seeds 1
-    and 31-35, held-out seed 36; ``arm`` = trained on those ranges and the arm scans of panicles 130-139
-    (session 6; commands and numbers in :mod:`seedmap.detect.train_cnn`)."""
+    and 31-35, held-out seed 36 (session 4; fine-tuned with peak-window box targets in session 7); ``arm`` =
+    trained on those ranges and the arm scans of panicles 130-139 (session 6; commands and numbers in
+    :mod:`seedmap.detect.train_cnn`)."""
     if domain not in ("field", "arm"):
         raise ConfigError(f"cnn.domain must be field or arm, got {domain!r}")
     return Path(__file__).with_name("weights") / ("fast_cnn.onnx" if domain == "field" else "fast_cnn_arm.onnx")
@@ -180,6 +181,9 @@ class CnnDetector(Detector):
         if self.cfg.tile and (self.cfg.tile % 2 or self.cfg.margin % 2):
             raise ConfigError(f"cnn.tile ({self.cfg.tile}) and cnn.margin ({self.cfg.margin}) must be even "
                               "(the network halves the resolution)")
+        #: the peak threshold in use (cnn.threshold, or the shipped default of cnn.domain)
+        self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None
+                               else CNN_DEFAULT_THRESHOLD[self.cfg.domain])
         self.path = cnn_weights_path(self.cfg, weights)
         self.sess = load_session(self.path, self.cfg.threads)
         meta = self.sess.get_modelmeta().custom_metadata_map
@@ -234,7 +238,7 @@ class CnnDetector(Detector):
             # even size for the stride-2 body, 1 px border so peaks at the image edge have neighbours
             ph, pw = h + h % 2 + 2, w + w % 2 + 2
             x = np.pad(x, ((0, 0), (0, 0), (1, ph - h - 1), (1, pw - w - 1)))
-            d = decode(self._run(np.ascontiguousarray(x)), c.threshold, (1, h + 1, 1, w + 1), c.smooth, self.kernel)
+            d = decode(self._run(np.ascontiguousarray(x)), self.threshold, (1, h + 1, 1, w + 1), c.smooth, self.kernel)
             parts.append((d[1:], d[1] - 1, d[2] - 1))
         else:
             g = self.fast_cfg.max_green_excess / 16.0 if self.fast_cfg.max_green_excess > 0 else 0.0
@@ -250,7 +254,7 @@ class CnnDetector(Detector):
                 tb = tiles[k0:k0 + bs]
                 x = np.stack([pad[ty * t: ty * t + s, tx * t: tx * t + s] for ty, tx in tb])
                 x = np.ascontiguousarray((x.astype(np.float32) * (1.0 / 255.0)).transpose(0, 3, 1, 2))
-                d = decode(self._run(x), c.threshold, (m, m + t, m, m + t), c.smooth, self.kernel)
+                d = decode(self._run(x), self.threshold, (m, m + t, m, m + t), c.smooth, self.kernel)
                 # image pixel = tile origin (minus the margin) + position in the padded window
                 parts.append((d[1:], d[1] + tb[d[0], 1] * t - m, d[2] + tb[d[0], 0] * t - m))
         if sum(len(p[1]) for p in parts) == 0:

@@ -85,6 +85,11 @@ class FastConfig(ConfigModel):
     use_cnn: bool = True
 
 
+#: the ``cnn.threshold`` that ``None`` means, per ``cnn.domain`` (field: session-7 weights, chosen on det_s36 and
+#: det_s45; arm: the session-6 default, kept so that arm-scan detections do not change)
+CNN_DEFAULT_THRESHOLD = {"field": 0.50, "arm": 0.45}
+
+
 class CnnConfig(ConfigModel):
     """The ``fast`` detector's small CNN (seedmap.detect.cnn): heatmap peaks + box per pixel, onnxruntime.
 
@@ -100,9 +105,9 @@ class CnnConfig(ConfigModel):
     #: simulated row ranges), ``arm`` = fast_cnn_arm.onnx (trained on ranges + close-up arm scans of panicles,
     #: whose flash-lit seeds are ~2x larger and often saturated; the panicle reconstruction sets it)
     domain: Literal["field", "arm"] = "field"
-    #: keep heatmap peaks with seed probability at least this (chosen on det_s36: F1 0.883 at 0.45,
-    #: 0.884 at 0.5, 0.879 at 0.4; session-4 weights)
-    threshold: float = 0.45
+    #: keep heatmap peaks with seed probability at least this; None = the shipped network's own threshold, chosen
+    #: on validation (CNN_DEFAULT_THRESHOLD: field 0.50, session 7, det_s36 / det_s45 F1 0.902 / 0.884; arm 0.45)
+    threshold: float | None = None
     #: tile side (px) at the input resolution; 0 = whole image in one pass
     tile: int = 48
     #: context added around every tile (px). The receptive-field radius is 9 px (+1 for the 3x3
