@@ -22,6 +22,10 @@ size, outputs mapped back) 0.54 / 0.55 / 0.16; a network trained on ranges + arm
 0.30, more recall for the counter to de-duplicate). The arm network costs 0.014 F1 on the row ranges (validation
 det_s36 0.884 vs 0.898), so ``fast`` keeps the field network by default and the panicle reconstruction asks
 for the arm one (ReconConfig.detector_overrides).
+Session 7: those numbers were measured on flash-saturated renders. Arm scans are now exposed for their stand-off
+(:mod:`seedmap.sim.panicle_scan`) and ``fast_cnn_arm.onnx`` was retrained on such scans (same recipe, panicles
+130-139): box F1 on the new renders of panicles 140-141 0.622 at threshold 0.40 (what the reconstruction uses),
+against 0.560 for the session-6 arm network and 0.513 for the field network at their best thresholds.
 
 Measured and not adopted (session 4, det_s36): onnxruntime int8 static quantization (QDQ or
 QOperator, calibrated on training tiles) is *slower* on this AVX2 CPU at 8-24 channels (92 / 105 ms
@@ -56,7 +60,8 @@ from seedmap.records import Detections, StereoDetections, StereoFrame
 def default_cnn_path(domain: str = "field") -> Path:
     """The shipped network of ``domain`` (``cnn.domain``): ``field`` = trained on the simulated ranges of seeds 1
     and 31-35, held-out seed 36 (session 4; fine-tuned with peak-window box targets in session 7); ``arm`` =
-    trained on those ranges and the arm scans of panicles 130-139 (session 6; commands and numbers in
+    trained on those ranges and the arm scans of panicles 130-139 (session 6; retrained on auto-exposed scans in
+    session 7; commands and numbers in
     :mod:`seedmap.detect.train_cnn`)."""
     if domain not in ("field", "arm"):
         raise ConfigError(f"cnn.domain must be field or arm, got {domain!r}")
