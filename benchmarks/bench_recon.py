@@ -39,6 +39,12 @@ into ``--data-dir data/recon_s7``; results in ``results/recon_eval_bench/DETECTO
 this session, run once after the freeze) ``--modes seeds --data-dir data/recon_s7``; ``..._gt_s7_heldout.json`` also
 holds the fk / full / seeds registration modes. ``bench_recon_s7.json``: the speed run (``--out``) on a scan
 simulated with the auto exposure.
+Session 7b (issue #6, duplicate ``fast`` keypoints on dark varieties; the ``fast`` profile joins view-sharing
+tracks within 0.6 median diameters instead of 0.4, chosen on the tuning panicles only):
+``..._fast_s7b_{tuning,heldout,heldout2,fresh3,fresh4}.json`` = ``--recount`` of copies of the session-7 folders
+(tags ``s7btune`` ... ``s7bfresh4``) with the new profile; ``..._{gt,fast}_s7b_fresh5.json`` = the panicles
+170-179 rendered after that freeze and run once (``--eval 100 170 ... 179 --detectors gt fast --modes seeds
+--data-dir data/recon_s7 --tag s7bfresh5``).
 """
 
 from __future__ import annotations
