@@ -59,7 +59,7 @@ from seedmap.records import Detections, StereoDetections, StereoFrame
 
 def default_cnn_path(domain: str = "field") -> Path:
     """The shipped network of ``domain`` (``cnn.domain``): ``field`` = trained on the simulated ranges of seeds 1
-    and 31-35, held-out seed 36 (session 4; fine-tuned with peak-window box targets in session 7); ``arm`` =
+    and 31-35, held-out seed 36 (session 4); ``arm`` =
     trained on those ranges and the arm scans of panicles 130-139 (session 6; retrained on auto-exposed scans in
     session 7; commands and numbers in
     :mod:`seedmap.detect.train_cnn`)."""
