@@ -1788,8 +1788,6 @@ class SeedMatcher:
         self._disp_known: tuple[int, np.ndarray] | None = None
         #: patch descriptors of the last two frames' left keypoints (temporal NCC verification)
         self._patches: list[tuple[np.ndarray, np.ndarray]] = []
-        #: the last frame's dense disparity map (stereo_prior="sgbm"; cues of prior_score="mlp")
-        self._disparity_image: np.ndarray | None = None
         #: keep the last frame's stereo inputs (detections, dense disparity at the left keypoints,
         #: :class:`StereoCues` when the sgbm prior ran) in ``last_stereo_inputs``: the score fit
         #: (benchmarks/fit_assoc_score.py) labels exactly what the matcher would score
@@ -1877,18 +1875,17 @@ class SeedMatcher:
         t0 = time.perf_counter()
         det = self.detector.detect_stereo(frame)
         t_det = (time.perf_counter() - t0) * 1e3
-        disp, disp_r, t_prior = None, None, {}
-        self._disparity_image = None
+        disp, disp_r, d_img, t_prior = None, None, None, {}
         if self.cfg.stereo_prior == "sgbm" and self._carry_from(det.index) is None:
-            disp, disp_r, t_prior = self._dense_prior(frame, det)
+            disp, disp_r, d_img, t_prior = self._dense_prior(frame, det)
         app, cues = None, None
         mlp = self.cfg.prior_score == "mlp"
-        if disp is not None and (mlp or self.keep_inputs) and self._disparity_image is not None:
+        if disp is not None and (mlp or self.keep_inputs):
             c0, t0 = time.process_time(), time.perf_counter()
             w, pp = self.calib.width, self.cfg.patch_px
             cues = StereoCues(image_cues(frame.left, det.left.keypoints, det.left.ellipses, w, pp),
                               image_cues(frame.right, det.right.keypoints, det.right.ellipses, w, pp),
-                              self._disparity_image)
+                              d_img)
             mid = cue_patch_sizes(w, pp)[1]
             # the learned score and the temporal NCC use the middle-size patches
             app = (cues.left.patches[mid], None if mlp else cues.right.patches[mid])
@@ -1936,10 +1933,11 @@ class SeedMatcher:
                 return desc
         return None
 
-    def _dense_prior(self, frame: StereoFrame,
-                     det: StereoDetections) -> tuple[np.ndarray | None, np.ndarray | None, dict[str, float]]:
+    def _dense_prior(self, frame: StereoFrame, det: StereoDetections
+                     ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, dict[str, float]]:
         """SGBM disparity of every left keypoint (image px, NaN = unknown), of every right keypoint
-        (only with ``sgbm_lr_tol_px > 0``, else None) and the timings.
+        (only with ``sgbm_lr_tol_px > 0``, else None), the left image's dense disparity map (the cues
+        of ``prior_score="mlp"``) and the timings; all three None when SGBM did not run.
 
         The disparity range searched comes from the previous frame's stereo matches when this frame
         follows it, else from a keypoint-only matching of this frame (``refine`` method)."""
@@ -1949,7 +1947,7 @@ class SeedMatcher:
         kl = np.asarray(det.left.keypoints, np.float64).reshape(-1, 2)
         kr = np.asarray(det.right.keypoints, np.float64).reshape(-1, 2)
         if len(kl) == 0 or len(kr) == 0:
-            return None, None, {}
+            return None, None, None, {}
         s = full_res_scale(self.calib.width)
         g = self.gates.scaled(self.calib.width)
         known = None
@@ -1962,16 +1960,15 @@ class SeedMatcher:
             rng = disparity_search_range(kl[m0.idx_a, 0] - kr[m0.idx_b, 0], self.cfg.sgbm_margin_px / s,
                                          g.stereo_min_disparity_px, self.cfg.sgbm_max_disparities)
         if rng is None:
-            return None, None, {}
+            return None, None, None, {}
         d_img = sgbm_disparity(frame.left, frame.right, rng[0], rng[1], self.cfg.sgbm_block, self.cfg.sgbm_uniqueness)
-        self._disparity_image = d_img
         d = disparity_at(d_img, kl)
         d_r = None
         if self.cfg.sgbm_lr_tol_px > 0:  # the right image's disparity: SGBM of the mirrored pair
             r_img = sgbm_disparity(frame.right[:, ::-1], frame.left[:, ::-1], rng[0], rng[1], self.cfg.sgbm_block,
                                    self.cfg.sgbm_uniqueness)[:, ::-1]
             d_r = disparity_at(r_img, kr)
-        return d, d_r, {"stereo_prior": (time.perf_counter() - t0) * 1e3, "stereo_prior_cpu": (time.process_time() - c0) * 1e3}
+        return d, d_r, d_img, {"stereo_prior": (time.perf_counter() - t0) * 1e3, "stereo_prior_cpu": (time.process_time() - c0) * 1e3}
 
     def _update_shift(self, ka: np.ndarray, kb: np.ndarray, m: Matches) -> None:
         if len(m) >= 5:
@@ -2010,4 +2007,3 @@ class SeedMatcher:
         self._prev_flow = None
         self._disp_known = None
         self._patches = []
-        self._disparity_image = None
