@@ -941,14 +941,15 @@ CUE_EDGE_HALF_PX = 17.0
 CUE_OCCLUSION_REACH_PX = 137.0
 
 
+def patch_side(width: int, full_res_px: float) -> int:
+    """Side (image px) of a ``full_res_px`` patch at an image ``width`` px wide: rounded, odd, >= 3."""
+    k = int(round(full_res_px / full_res_scale(width)))
+    return max(3, k + 1 - k % 2)
+
+
 def cue_patch_sizes(width: int, patch_px: float) -> tuple[int, int, int]:
     """Odd patch sides (image px) of the small, middle and large NCC at an image ``width`` px wide."""
-    s = full_res_scale(width)
-
-    def odd(v: float) -> int:
-        k = int(round(v / s))
-        return max(3, k + 1 - k % 2)
-    return odd(CUE_PATCH_SMALL_PX), odd(patch_px), odd(CUE_PATCH_LARGE_PX)
+    return patch_side(width, CUE_PATCH_SMALL_PX), patch_side(width, patch_px), patch_side(width, CUE_PATCH_LARGE_PX)
 
 
 @dataclass
@@ -1886,7 +1887,7 @@ class SeedMatcher:
             cues = StereoCues(image_cues(frame.left, det.left.keypoints, det.left.ellipses, w, pp),
                               image_cues(frame.right, det.right.keypoints, det.right.ellipses, w, pp),
                               d_img)
-            mid = cue_patch_sizes(w, pp)[1]
+            mid = self._patch_size()
             # the learned score and the temporal NCC use the middle-size patches
             app = (cues.left.patches[mid], None if mlp else cues.right.patches[mid])
             t_prior["appearance_cpu"] = (time.process_time() - c0) * 1e3
@@ -1924,8 +1925,7 @@ class SeedMatcher:
 
     def _patch_size(self) -> int:
         """Side of the NCC patches in image px: ``patch_px`` scaled to the image width, odd, >= 3."""
-        k = int(round(self.cfg.patch_px / full_res_scale(self.calib.width)))
-        return max(3, k + 1 - k % 2)
+        return patch_side(self.calib.width, self.cfg.patch_px)
 
     def _cached_patches(self, kp: np.ndarray) -> np.ndarray | None:
         for arr, desc in self._patches:
