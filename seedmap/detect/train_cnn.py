@@ -284,7 +284,6 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
     R = np.zeros((n, 6, size, size), np.float32)
     M = np.zeros((n, size, size), np.float32)
     IG = np.zeros((n, size, size), np.float32)
-    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
     for k in range(n):
         im = images[int(rng.integers(len(images)) if weights is None else rng.choice(len(images), p=weights))]
         h, w = im.inst.shape
@@ -321,14 +320,7 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
         m[m_all] = ok
         ii = ii[ok]
         reg = np.zeros((6, size, size), np.float32)
-        gx, gy = xx[m], yy[m]
-        b = bx[ii]
-        reg[0][m] = gx - b[:, 0]
-        reg[1][m] = gy - b[:, 1]
-        reg[2][m] = b[:, 2] - gx
-        reg[3][m] = b[:, 3] - gy
-        reg[4][m] = kp[ii, 0] - gx
-        reg[5][m] = kp[ii, 1] - gy
+        _box_targets(reg, *np.nonzero(m), ii, bx, kp)
         near = ((kp[:, 0] > -4) & (kp[:, 0] < size + 4) & (kp[:, 1] > -4) & (kp[:, 1] < size + 4))
         own = None
         if sp.peak_box_radius > 0 or sp.sliver_box_weight > 0:
@@ -373,6 +365,20 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
     return X, H, R, M, IG
 
 
+def _box_targets(reg: np.ndarray, y: np.ndarray, x: np.ndarray, ins: np.ndarray, bx: np.ndarray,
+                 kp: np.ndarray) -> None:
+    """Writes (in place) the targets of instance ``ins[k]`` at pixel ``(y[k], x[k])`` of ``reg`` (6, S, S):
+    distances to the pixel-edge box ``bx`` (l, t, r, b) and the offset to the keypoint ``kp`` (dx, dy)."""
+    gx, gy = x.astype(np.float32), y.astype(np.float32)
+    b = bx[ins]
+    reg[0][y, x] = gx - b[:, 0]
+    reg[1][y, x] = gy - b[:, 1]
+    reg[2][y, x] = b[:, 2] - gx
+    reg[3][y, x] = b[:, 3] - gy
+    reg[4][y, x] = kp[ins, 0] - gx
+    reg[5][y, x] = kp[ins, 1] - gy
+
+
 def _peak_box_targets(reg: np.ndarray, m: np.ndarray, own: np.ndarray, kp: np.ndarray, bx: np.ndarray,
                       cand: np.ndarray, area: np.ndarray, radius: int) -> None:
     """Box/offset targets (in place) on the pixels of the ``(2 radius + 1)^2`` window around every candidate
@@ -401,14 +407,7 @@ def _peak_box_targets(reg: np.ndarray, m: np.ndarray, own: np.ndarray, kp: np.nd
     _, last = np.unique(pix[::-1], return_index=True)
     sel = len(pix) - 1 - last  # last occurrence of every pixel = the smallest instance there
     ins, x, y = ins[sel], x[sel], y[sel]
-    gx, gy = x.astype(np.float32), y.astype(np.float32)
-    b = bx[ins]
-    reg[0][y, x] = gx - b[:, 0]
-    reg[1][y, x] = gy - b[:, 1]
-    reg[2][y, x] = b[:, 2] - gx
-    reg[3][y, x] = b[:, 3] - gy
-    reg[4][y, x] = kp[ins, 0] - gx
-    reg[5][y, x] = kp[ins, 1] - gy
+    _box_targets(reg, y, x, ins, bx, kp)
     m[y, x] = True
     own[y, x] = ins
 
