@@ -86,16 +86,22 @@ def patch_descriptors(image: np.ndarray, kp: np.ndarray, size: int) -> np.ndarra
     views and in consecutive frames; the dot product of two descriptors is their normalised
     cross-correlation (NCC, -1..1). One ``cv2.remap`` call for all keypoints (no loop); a constant
     patch gives the zero vector (NCC 0 with everything)."""
-    import cv2
-
     kp = np.asarray(kp, np.float64).reshape(-1, 2)
     size = max(1, int(size))
     if len(kp) == 0:
         return np.zeros((0, size * size), np.float32)
+    return _normalised(_raw_patches(grey_image(image), kp, size).reshape(len(kp), -1))
+
+
+def grey_image(image: np.ndarray) -> np.ndarray:
+    """The grey image :func:`patch_descriptors` samples (uint8 from RGB; a 2-D image unchanged): convert
+    once when sampling several patch sizes of one image."""
+    import cv2
+
     a = np.asarray(image)
     if a.ndim == 3:
         a = cv2.cvtColor(np.ascontiguousarray(a[..., :3]).astype(np.uint8, copy=False), cv2.COLOR_RGB2GRAY)
-    return _normalised(_raw_patches(a, kp, size).reshape(len(kp), -1))
+    return a
 
 
 def _raw_patches(a: np.ndarray, kp: np.ndarray, size: int) -> np.ndarray:

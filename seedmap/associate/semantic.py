@@ -979,11 +979,12 @@ def image_cues(image: np.ndarray, kp: np.ndarray, ellipses: np.ndarray | None, w
                patch_px: float) -> ImageCues:
     """:class:`ImageCues` of the keypoints ``kp`` (N, 2) of one image (three grey patch sizes from
     :func:`cue_patch_sizes`, colour patches of the middle size, 5 x 5 px mean colour)."""
-    from seedmap.associate.disparity import colour_descriptors, mean_colour, patch_descriptors
+    from seedmap.associate.disparity import colour_descriptors, grey_image, mean_colour, patch_descriptors
 
     kp = np.asarray(kp, np.float64).reshape(-1, 2)
     sizes = cue_patch_sizes(width, patch_px)
-    patches = {k: patch_descriptors(image, kp, k) for k in sorted(set(sizes))}
+    grey = grey_image(image)  # once for the three sizes
+    patches = {k: patch_descriptors(grey, kp, k) for k in sorted(set(sizes))}
     chroma, bright = mean_colour(image, kp, 2)
     if ellipses is not None and len(ellipses) == len(kp):
         e = np.asarray(ellipses, np.float64).reshape(-1, 5)
