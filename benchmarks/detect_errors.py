@@ -31,12 +31,6 @@ from pathlib import Path
 
 import numpy as np
 
-from seedmap.records import Detections
-
-
-def _subset(d: Detections, keep: np.ndarray) -> Detections:
-    return Detections(boxes=d.boxes[keep], scores=d.scores[keep], ellipses=d.ellipses[keep])
-
 
 def detect_all(dataset: str | Path, weights: str | None, threshold: float, overrides: list[str] | None = None,
                progress: bool = True) -> tuple[dict, float]:
@@ -141,7 +135,7 @@ def main() -> None:
         dets, cpu = detect_all(dname, a.weights, min(ths + [a.bucket_threshold]), a.overrides)
         r = {"cpu_s_detect": cpu, "images": len(dets), "min_gt_area_px": mga, "by_threshold": {}}
         for t in ths:
-            dt = {k: _subset(v, v.scores >= t) for k, v in dets.items()}
+            dt = {k: v.subset(v.scores >= t) for k, v in dets.items()}
             m = evaluate_detections(ds, dt, 0.5, "greedy", mga)
             r["by_threshold"][str(t)] = {"precision": m.precision, "recall": m.recall, "f1": m.f1,
                                          "kp_median_px": m.kp_err_median_px, "kp_p90_px": m.kp_err_p90_px,
@@ -149,7 +143,7 @@ def main() -> None:
             print(f"{dname} t={t:.2f}: P {m.precision:.4f} R {m.recall:.4f} F1 {m.f1:.4f} "
                   f"kp med {m.kp_err_median_px:.3f} px (det {m.n_det}, gt {m.n_gt}, tp {m.tp})")
         if not a.no_buckets:
-            dt = {k: _subset(v, v.scores >= a.bucket_threshold) for k, v in dets.items()}
+            dt = {k: v.subset(v.scores >= a.bucket_threshold) for k, v in dets.items()}
             r["buckets"] = error_buckets(ds, dt, mga)
             print(json.dumps(r["buckets"], indent=1))
         res["datasets"][dname] = r
