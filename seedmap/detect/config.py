@@ -106,7 +106,7 @@ class CnnConfig(ConfigModel):
     weights: str | None = None
     #: which shipped network ``weights = None`` means: ``field`` = seedmap/detect/weights/fast_cnn.onnx (trained on
     #: simulated row ranges), ``arm`` = fast_cnn_arm.onnx (trained on ranges + close-up arm scans of panicles,
-    #: whose flash-lit seeds are ~2x larger and often saturated; the panicle reconstruction sets it)
+    #: whose seeds are ~2x larger; retrained on auto-exposed scans in session 7; the panicle reconstruction sets it)
     domain: Literal["field", "arm"] = "field"
     #: keep heatmap peaks with seed probability at least this; None = the shipped network's own threshold, chosen
     #: on validation (CNN_DEFAULT_THRESHOLD: field 0.45, session 4, det_s36 F1 0.898; arm 0.45)
