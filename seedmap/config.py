@@ -86,7 +86,28 @@ def load_config(
     except ValidationError as e:
         err = e.errors()[0]
         where = ".".join(str(x) for x in err["loc"])
+        if err["type"] == "extra_forbidden":
+            raise ConfigError(f"unknown config key {where!r}{_key_hint(cls, err['loc'])}", path) from None
         raise ConfigError(f"invalid config value {where!r}: {err['msg']}", path) from None
+
+
+def _key_hint(cls: type[BaseModel], loc: tuple) -> str:
+    """`` (did you mean 'a.b'?)`` for a mistyped key, else the keys its section has (a typo is the usual cause)."""
+    import difflib
+
+    model: Any = cls
+    for part in loc[:-1]:
+        field = model.model_fields.get(str(part)) if isinstance(model, type) and issubclass(model, BaseModel) else None
+        model = field.annotation if field is not None else None
+    if not (isinstance(model, type) and issubclass(model, BaseModel)):
+        return ""
+    keys = list(model.model_fields)
+    prefix = "".join(f"{p}." for p in loc[:-1])
+    close = difflib.get_close_matches(str(loc[-1]), keys, n=1)
+    if close:
+        return f" (did you mean {prefix + close[0]!r}?)"
+    shown = ", ".join(keys[:15]) + (f", ... ({len(keys)} keys)" if len(keys) > 15 else "")
+    return f" ({prefix.rstrip('.') or 'the config'} has: {shown})"
 
 
 def config_to_yaml(cfg: BaseModel) -> str:

@@ -64,3 +64,27 @@ def test_uncreatable_output_folder_is_one_line_exit_2(tmp_path, monkeypatch, cap
     with pytest.raises(InputError, match="cannot write here"):
         atomic_write_text(out / "metrics.json", "{}")
     assert not out.exists()
+
+
+# ---- config keys ------------------------------------------------------------------------------------------------
+
+def test_unknown_config_key_names_the_closest_key(tmp_path, monkeypatch, capsys):
+    # was: "invalid config value 'gate': Extra inputs are not permitted"
+    from seedmap.config import load_config
+    from seedmap.slam.config import SlamConfig
+
+    with pytest.raises(ConfigError, match=r"unknown config key 'gate' \(did you mean 'gates'\?\)"):
+        load_config(SlamConfig, None, ["gate.stereo_max_dy_px=3"])
+    with pytest.raises(ConfigError, match=r"did you mean 'gates.stereo_max_dy_px'\?"):
+        load_config(SlamConfig, None, ["gates.stereo_max_dy_pxx=3"])
+    with pytest.raises(ConfigError, match=r"unknown config key 'gates.zzz' \(gates has: .*travel_sign\)"):
+        load_config(SlamConfig, None, ["gates.zzz=1"])
+    with pytest.raises(ConfigError, match="invalid config value 'gates.stereo_max_dy_px'"):  # wrong type: unchanged
+        load_config(SlamConfig, None, ["gates.stereo_max_dy_px=abc"])
+    yml = tmp_path / "c.yaml"
+    yml.write_text("backend:\n  stereo_sigma_pxx: 2\n")
+    ds = _tiny_dataset(tmp_path / "ds")
+    assert _run(["slam", ds, "--matcher", "orb", "-q", "--out", tmp_path / "r", "--config", yml], monkeypatch) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert str(yml) in line and "backend.stereo_sigma_px" in line
+    assert not (tmp_path / "r").exists()
