@@ -88,3 +88,34 @@ def test_unknown_config_key_names_the_closest_key(tmp_path, monkeypatch, capsys)
     line = _one_error_line(capsys.readouterr().err)
     assert str(yml) in line and "backend.stereo_sigma_px" in line
     assert not (tmp_path / "r").exists()
+
+
+# ---- real data where seedmap's own (simulated, with GT) layout is needed ---------------------------------------
+
+def test_seedmap_reader_names_the_format_it_was_given(tmp_path, monkeypatch, capsys):
+    # was: "<folder>/calib.yaml: calibration file not found" for a folder that has its calibration
+    from seedmap.io import detect_format
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = _tiny_dataset(tmp_path / "ds")
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    (ds / "left").rename(folder / "cam0")
+    (ds / "right").rename(folder / "cam1")
+    (ds / "calib.yaml").rename(folder / "calibration.yaml")
+    assert detect_format(folder) == "folder"
+    with pytest.raises(InputError, match="this is a folder dataset"):
+        SeedmapDataset(folder)
+    assert _run(["eval", "associate", folder], monkeypatch) == 2
+    assert "folder dataset" in _one_error_line(capsys.readouterr().err)
+    with pytest.raises(InputError, match="dataset folder not found"):
+        SeedmapDataset(tmp_path / "missing")
+
+
+@pytest.mark.skipif(not EUROC.is_dir(), reason="needs ../shared/realdata")
+def test_slam_with_the_default_oracle_on_euroc_says_why(tmp_path, monkeypatch, capsys):
+    # `seedmap slam EUROC --out R` uses --detector gt by default; it said "EUROC/calib.yaml: calibration file not found"
+    assert _run(["slam", EUROC, "-q", "--out", tmp_path / "r"], monkeypatch) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "euroc dataset" in line and "--detector fast" in line
+    assert not (tmp_path / "r").exists()

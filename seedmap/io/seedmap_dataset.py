@@ -196,6 +196,14 @@ class SeedmapDataset:
 
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
+        if self.root.exists() and not (self.root / "calib.yaml").is_file():
+            from seedmap.io import detect_format
+
+            fmt = detect_format(self.root)
+            if fmt not in (None, "seedmap"):  # real data given where simulated data with GT is needed
+                raise InputError(f"this is a {fmt} dataset; this needs seedmap's own layout (calib.yaml, times.txt, "
+                                 "left/, right/, and gt/ for the gt oracle detector and GT evaluations) as "
+                                 "`seedmap simulate` writes it (on real images use --detector fast)", self.root)
         if not self.root.is_dir():
             raise InputError("dataset folder not found", self.root)
         self.calib = read_calib_yaml(self.root / "calib.yaml")
