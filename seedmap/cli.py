@@ -128,6 +128,13 @@ def detect_cmd(
     from seedmap.detect.run import run_detect
 
     cfg = load_config(DetectConfig, config, set_ or [])
+    if weights is not None:  # only these two read --weights; the others would silently use their own
+        from seedmap.detect import default_detector_name
+
+        name = default_detector_name() if detector in ("default", "auto") else detector
+        if name not in ("fast-cnn", "frcnn-pix2pix"):
+            raise SeedmapError(f"--weights is read by --detector fast-cnn (.onnx) and frcnn-pix2pix only; "
+                               f"{name!r} would ignore {weights} (use --detector fast-cnn --weights FILE)")
     p = run_detect(dataset, out, detector, weights, cfg, overlay=overlay, overwrite=overwrite)
     typer.echo(f"detections written to {p}")
 

@@ -119,3 +119,17 @@ def test_slam_with_the_default_oracle_on_euroc_says_why(tmp_path, monkeypatch, c
     line = _one_error_line(capsys.readouterr().err)
     assert "euroc dataset" in line and "--detector fast" in line
     assert not (tmp_path / "r").exists()
+
+
+# ---- --weights with a detector that does not read it -------------------------------------------------------------
+
+@pytest.mark.parametrize("detector", ["fast", "fast-classic", "gt"])
+def test_weights_for_a_detector_that_ignores_them(tmp_path, monkeypatch, capsys, detector):
+    # was: exit 0, the user's weights silently unused (fast ran the shipped CNN)
+    ds = _tiny_dataset(tmp_path / "ds")
+    w = tmp_path / "mine.onnx"
+    w.write_bytes(b"not a network")
+    assert _run(["detect", ds, "--detector", detector, "--weights", w, "--out", tmp_path / "d"], monkeypatch) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "--weights" in line and str(w) in line
+    assert not (tmp_path / "d").exists()
