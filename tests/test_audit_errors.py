@@ -133,3 +133,17 @@ def test_weights_for_a_detector_that_ignores_them(tmp_path, monkeypatch, capsys,
     line = _one_error_line(capsys.readouterr().err)
     assert "--weights" in line and str(w) in line
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc (a folder nobody can create in)")
+def test_rerun_recording_in_an_uncreatable_folder(tmp_path, monkeypatch, capsys):
+    # `seedmap slam DS --rerun /proc/x/run.rrd` was a FileNotFoundError traceback, exit 1
+    from seedmap.viz.rerun_log import RerunLogger
+
+    with pytest.raises(InputError, match="cannot write the rerun recording here"):
+        RerunLogger(Path("/proc/seedmap-audit/run.rrd"))
+    ds = _tiny_dataset(tmp_path / "ds")
+    assert _run(["slam", ds, "--matcher", "orb", "-q", "--out", tmp_path / "r", "--rerun", "/proc/seedmap-audit/r.rrd"],
+                monkeypatch) == 2
+    assert "/proc/seedmap-audit/r.rrd" in _one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "r").exists()

@@ -91,8 +91,12 @@ class RerunLogger:
         if self.path.is_dir():
             raise InputError("is a folder; --rerun wants a file name such as run.rrd", self.path)
         check_output_parent(self.path.parent / ".probe")  # the folder must be creatable / writable
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        try:  # os.access() in check_output_parent says yes to root where the file system refuses (/proc, ro mounts)
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._tmp.touch()
+        except OSError as e:
+            raise InputError(f"cannot write the rerun recording here ({e.strerror or e})", self.path) from None
         self._rec = rr.RecordingStream(application_id)
         self._rec.save(str(self._tmp))
         # not closed (an exception unwound the pipeline, or the interpreter exits): no partial .rrd
