@@ -652,6 +652,10 @@ def reconstruct_cmd(
     if detector is not None:
         extra.append(f"detector={detector}")
     cfg = load_config(ReconConfig, config, extra)
+    if rerun is not None:  # the recording is written after the results: refuse a bad path before any work
+        from seedmap.viz.rerun_log import check_rrd_path
+
+        check_rrd_path(rerun)
     path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet, rerun=rerun)
     q = m["quality"]
     typer.echo(f"{m['mode']}: {m['seed_count']} seeds, {m['cloud_points']} points, "

@@ -147,3 +147,8 @@ def test_rerun_recording_in_an_uncreatable_folder(tmp_path, monkeypatch, capsys)
                 monkeypatch) == 2
     assert "/proc/seedmap-audit/r.rrd" in _one_error_line(capsys.readouterr().err)
     assert not (tmp_path / "r").exists()
+    # reconstruct records after writing its results: the path is now checked before any work
+    assert _run(["reconstruct", ds, "-q", "--out", tmp_path / "rec", "--rerun", "/proc/seedmap-audit/r.rrd"],
+                monkeypatch) == 2
+    assert "rerun recording" in _one_error_line(capsys.readouterr().err)
+    assert not (tmp_path / "rec").exists()

@@ -33,7 +33,7 @@ import numpy as np
 
 from seedmap.records import Detections, Matches, StereoCalib, Trajectory
 
-__all__ = ["RerunLogger", "ellipse_polylines", "rrd_entity_paths"]
+__all__ = ["RerunLogger", "check_rrd_path", "ellipse_polylines", "rrd_entity_paths"]
 
 # colours (RGB) used consistently across entities
 _C_KP = (255, 210, 0)
@@ -49,6 +49,24 @@ def _discard(rec: Any, tmp: Path) -> None:
         rec.disconnect()
     with contextlib.suppress(FileNotFoundError, TypeError):
         os.unlink(tmp)
+
+
+def check_rrd_path(path: str | Path) -> None:
+    """Fail early (one line) when a ``--rerun`` file cannot be written there; creates its folder."""
+    from seedmap.errors import InputError
+    from seedmap.io.atomic import check_output_parent
+
+    path = Path(path)
+    if path.is_dir():
+        raise InputError("is a folder; --rerun wants a file name such as run.rrd", path)
+    check_output_parent(path.parent / ".probe")  # the folder must be creatable / writable
+    probe = path.with_name(f".{path.name}.{os.getpid()}.probe")
+    try:  # os.access() in check_output_parent says yes to root where the file system refuses (/proc, ro mounts)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        probe.touch()
+        probe.unlink()
+    except OSError as e:
+        raise InputError(f"cannot write the rerun recording here ({e.strerror or e})", path) from None
 
 
 def ellipse_polylines(ellipses: np.ndarray, n_pts: int = 24) -> np.ndarray:
@@ -85,18 +103,8 @@ class RerunLogger:
             return
         import rerun as rr
 
-        from seedmap.errors import InputError
-        from seedmap.io.atomic import check_output_parent
-
-        if self.path.is_dir():
-            raise InputError("is a folder; --rerun wants a file name such as run.rrd", self.path)
-        check_output_parent(self.path.parent / ".probe")  # the folder must be creatable / writable
+        check_rrd_path(self.path)
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
-        try:  # os.access() in check_output_parent says yes to root where the file system refuses (/proc, ro mounts)
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._tmp.touch()
-        except OSError as e:
-            raise InputError(f"cannot write the rerun recording here ({e.strerror or e})", self.path) from None
         self._rec = rr.RecordingStream(application_id)
         self._rec.save(str(self._tmp))
         # not closed (an exception unwound the pipeline, or the interpreter exits): no partial .rrd
