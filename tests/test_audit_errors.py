@@ -152,3 +152,35 @@ def test_rerun_recording_in_an_uncreatable_folder(tmp_path, monkeypatch, capsys)
                 monkeypatch) == 2
     assert "rerun recording" in _one_error_line(capsys.readouterr().err)
     assert not (tmp_path / "rec").exists()
+
+
+# ---- loader hints name options the commands have ------------------------------------------------------------------
+
+def test_loader_hints_name_real_options_and_the_bag(tmp_path, monkeypatch, capsys):
+    # the hints said --calib / --sync-tol, which `seedmap slam` does not have; a swapped-camera error named
+    # only "/stereo/left/camera_info" (Path(bag) / "/topic" drops the bag)
+    from test_io_rosbag import write_bag
+
+    from seedmap.config import load_config
+    from seedmap.io.options import DatasetOptions
+    from seedmap.io.rosbag import RosbagSequence
+
+    bag = write_bag(tmp_path / "x.bag", "ros1", n=2)
+    with pytest.raises(InputError, match=rf"^{tmp_path}/x.bag:/stereo/left/camera_info: .*swapped"):
+        RosbagSequence(bag, left_topic="/stereo/right/image_rect", right_topic="/stereo/left/image_rect")
+    nocal = write_bag(tmp_path / "n.bag", "ros1", n=2, info=False, topics=("/a/img", "/b/img"))
+    with pytest.raises(InputError, match=r"dataset.left_topic=.*dataset.right_topic="):
+        RosbagSequence(nocal)
+    with pytest.raises(InputError, match=r"--set dataset.calib=FILE"):
+        RosbagSequence(nocal, left_topic="/a/img", right_topic="/b/img")
+    for bad in ("sync_tol_s=-1", "fps=0"):
+        with pytest.raises(ConfigError, match=bad.split("=")[0]):
+            load_config(DatasetOptions, None, [bad])
+    ds = _tiny_dataset(tmp_path / "ds")
+    (ds / "times.txt").unlink()
+    (ds / "calib.yaml").unlink()  # a plain left/ + right/ folder without calibration
+    assert _run(["slam", ds, "--matcher", "orb", "-q", "--out", tmp_path / "r"], monkeypatch) == 2
+    assert "--set dataset.calib=FILE" in _one_error_line(capsys.readouterr().err)
+    assert _run(["slam", bag, "--matcher", "orb", "-q", "--out", tmp_path / "r", "--set", "dataset.sync_tol_s=-1"],
+                monkeypatch) == 2
+    assert "dataset.sync_tol_s" in _one_error_line(capsys.readouterr().err)

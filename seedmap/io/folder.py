@@ -55,7 +55,7 @@ def resolve_rig(calib: str | Path | StereoRig | StereoCalib | None, root: Path,
     path = Path(calib) if calib is not None else find_calibration(root)
     if path is None:
         raise InputError("no calibration found (put calib.yaml / camchain.yaml / left.yaml+right.yaml / calib.txt "
-                         "in the folder, or pass --calib FILE)", root)
+                         "in the folder, or pass --set dataset.calib=FILE)", root)
     return load_rig(path, right=right_calib, image_size=image_size)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pydantic import Field
+
 from seedmap.config import ConfigModel
 from seedmap.errors import ConfigError
 
@@ -23,8 +25,8 @@ class DatasetOptions(ConfigModel):
     format: str | None = None
     calib: str | None = None
     right_calib: str | None = None
-    fps: float | None = None
-    sync_tol_s: float | None = None
+    fps: float | None = Field(None, gt=0)
+    sync_tol_s: float | None = Field(None, ge=0)
     left_topic: str | None = None
     right_topic: str | None = None
     rectified: bool | None = None

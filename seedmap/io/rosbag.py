@@ -144,7 +144,7 @@ def guess_stereo_topics(topics: dict[str, str]) -> tuple[str, str]:
             return best[1], best[2]
     listing = ", ".join(images) if images else "none"
     raise InputError(f"cannot tell the left and right image topics apart (image topics: {listing}); "
-                     "pass --left-topic and --right-topic")
+                     "pass --set dataset.left_topic=... --set dataset.right_topic=... (bag-info: --left-topic, --right-topic)")
 
 
 def _info_topic_for(image_topic: str, infos: list[str]) -> str | None:
@@ -297,7 +297,7 @@ class RosbagSequence:
         il, ir, dropped = match_stamps(stamps[left_topic], stamps[right_topic], sync_tol_s)
         if len(il) == 0:
             raise InputError(f"no left/right images within {sync_tol_s * 1e3:g} ms of each other "
-                             "(raise --sync-tol or check the topics)", self.path)
+                             "(raise --set dataset.sync_tol_s=SECONDS, bag-info: --sync-tol; or check the topics)", self.path)
         if dropped:
             self.warnings.append(f"{dropped} images without a stereo partner within {sync_tol_s * 1e3:g} ms dropped "
                                  f"({len(stamps[left_topic])} left, {len(stamps[right_topic])} right, "
@@ -323,13 +323,13 @@ class RosbagSequence:
 
     def _rig_from_camera_info(self, info_l, info_r, msgs) -> StereoRig:
         if info_l is None or info_r is None or info_l == info_r or info_l not in msgs or info_r not in msgs:
-            raise InputError("no CameraInfo for both cameras in the bag: pass a calibration file (--calib)", self.path)
+            raise InputError("no CameraInfo for both cameras in the bag: pass a calibration file (--set dataset.calib=FILE)", self.path)
         K1, D1, R1, P1, s1, m1 = _camera_info_matrices(msgs[info_l])
         K2, D2, R2, P2, s2, m2 = _camera_info_matrices(msgs[info_r])
-        where = self.path / info_r
+        where = Path(f"{self.path}:{info_r}")  # bag:topic (a topic is absolute: path / topic would drop the bag)
         if not np.any(P2[:, :3]) or not np.any(P1[:, :3]):
             raise InputError("CameraInfo has no projection matrix P (no stereo rectification): pass a calibration "
-                             "file with extrinsics (--calib camchain.yaml)", where)
+                             "file with extrinsics (--set dataset.calib=camchain.yaml)", where)
         if self.images_rectified:
             calib = _calib_from_P(P1, P2, s1, where)
             return StereoRig.from_calib(calib, source=where)
