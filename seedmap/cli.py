@@ -745,8 +745,7 @@ def bag_info_cmd(
             console.print(f"stereo: {seq.left_topic} + {seq.right_topic}: {len(seq)} pairs, {seq.dropped} dropped; "
                           f"calib {c.width}x{c.height} fx={c.fx:.2f} baseline={c.baseline:.4f} m "
                           f"({'rectified' if seq.maps is None else 'rectified at load'})")
-            for w in seq.warnings:
-                console.print(f"warning: {w}")
+            # seq.warnings were reported on stderr as the loader found them (seedmap.io.common.LoaderWarnings)
 
 
 @app.command("batch")
@@ -774,6 +773,16 @@ def batch_cmd(
 
 def main() -> None:
     """Console entry point: user errors become one line on stderr and exit code 2."""
+    import logging
+
+    log = logging.getLogger("seedmap")  # loader warnings (grey images converted, frames dropped): one line each
+    for h in [h for h in log.handlers if getattr(h, "seedmap_cli", False)]:
+        log.removeHandler(h)  # a previous main() in this process (tests): bind to the current sys.stderr
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("warning: %(message)s"))
+    handler.seedmap_cli = True  # type: ignore[attr-defined]
+    log.addHandler(handler)
+    log.propagate = False
     try:
         app()
     except SeedmapError as e:

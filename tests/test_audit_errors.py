@@ -27,7 +27,7 @@ def _run(args: list[str], monkeypatch) -> int:
 
 
 def _one_error_line(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("warning: ")]
     assert len(lines) == 1 and lines[0].startswith("error: "), err
     assert "Traceback" not in err
     return lines[0]
@@ -184,3 +184,25 @@ def test_loader_hints_name_real_options_and_the_bag(tmp_path, monkeypatch, capsy
     assert _run(["slam", bag, "--matcher", "orb", "-q", "--out", tmp_path / "r", "--set", "dataset.sync_tol_s=-1"],
                 monkeypatch) == 2
     assert "dataset.sync_tol_s" in _one_error_line(capsys.readouterr().err)
+
+
+# ---- loader warnings reach the user ------------------------------------------------------------------------------
+
+def test_loader_warnings_are_printed_by_the_commands(tmp_path, monkeypatch, capsys):
+    # grey images converted, timestamps made up from fps, a millimetre baseline: the loaders recorded them in
+    # seq.warnings, which only `bag-info --sequence` printed; `seedmap slam`/`detect` ran silently
+    import cv2
+
+    ds = _tiny_dataset(tmp_path / "ds", n=2)
+    (ds / "times.txt").unlink()  # now a plain folder dataset (calib.yaml found by the folder loader)
+    for p in sorted((ds / "left").glob("*.png")) + sorted((ds / "right").glob("*.png")):
+        cv2.imwrite(str(p), cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+    assert _run(["detect", ds, "--detector", "fast-classic", "--out", tmp_path / "d"], monkeypatch) == 0
+    err = [ln[ln.index("warning: "):] for ln in capsys.readouterr().err.splitlines() if "warning: " in ln]
+    assert any("grayscale images converted" in ln and str(ds) in ln for ln in err), err
+    assert any("timestamps are frame index / 5 Hz" in ln for ln in err), err
+    assert len(err) == 2  # each once, not once per frame
+    from seedmap.io import open_dataset
+
+    seq = open_dataset(ds)
+    assert any("frame index" in w for w in seq.warnings)  # the list API is unchanged

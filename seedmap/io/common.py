@@ -16,6 +16,33 @@ from seedmap.records import StereoCalib, StereoFrame
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
 
+class LoaderWarnings(list):
+    """A loader's ``warnings`` list that also reports each entry on the ``seedmap.io`` logger as it is added.
+
+    Recoverable oddities (grayscale converted, frames dropped, timestamps made up from fps, a baseline that
+    looks like millimetres) change what a run means, so the user must see them: the CLI prints this logger
+    as ``warning: <dataset>: <message>`` lines on stderr; library users get Python's default handling.
+    """
+
+    def __init__(self, where: str | Path) -> None:
+        super().__init__()
+        self.where = str(where)
+
+    def append(self, msg: str) -> None:  # type: ignore[override]
+        super().append(msg)
+        import logging
+
+        text = str(msg)
+        logging.getLogger("seedmap.io").warning(text if text.startswith(self.where) else f"{self.where}: {text}")
+
+    def extend(self, msgs) -> None:  # type: ignore[override]
+        for m in msgs:
+            self.append(m)
+
+    def __reduce__(self):  # unpickles as a plain list (no second report)
+        return (list, (list(self),))
+
+
 def to_rgb(img: np.ndarray, bgr: bool = True) -> np.ndarray:
     """Any 8-bit decoded image -> ``H x W x 3`` RGB uint8 (grayscale is replicated to three channels)."""
     if img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 1):

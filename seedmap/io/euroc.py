@@ -20,7 +20,7 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.calibration import parse_euroc_pair, read_yaml_any, rectified_rotation
-from seedmap.io.common import RectifiedPairs, check_timestamps
+from seedmap.io.common import LoaderWarnings, RectifiedPairs, check_timestamps
 from seedmap.io.sync import match_stamps
 from seedmap.records import Trajectory
 
@@ -69,7 +69,7 @@ class EurocSequence(RectifiedPairs):
         root = Path(root)
         self.mav0 = root / "mav0" if (root / "mav0").is_dir() else root
         self.root = root
-        self.warnings: list[str] = []
+        self.warnings: list[str] = LoaderWarnings(root)
         c0, c1 = self.mav0 / "cam0", self.mav0 / "cam1"
         for c in (c0, c1):
             if not c.is_dir():

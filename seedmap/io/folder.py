@@ -21,7 +21,8 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.calibration import StereoRig, load_rig
-from seedmap.io.common import RectifiedPairs, check_timestamps, list_images, read_image_rgb, read_times_txt
+from seedmap.io.common import (LoaderWarnings, RectifiedPairs, check_timestamps, list_images, read_image_rgb,
+                               read_times_txt)
 from seedmap.records import StereoCalib, Trajectory
 
 CAMERA_DIRS = (("left", "right"), ("cam0", "cam1"), ("image_left", "image_right"))
@@ -67,7 +68,7 @@ class StereoFolder(RectifiedPairs):
     def __init__(self, root: str | Path, calib: str | Path | StereoRig | StereoCalib | None = None,
                  right_calib: str | Path | None = None, fps: float = 5.0, rectify_alpha: float = 0.0) -> None:
         self.root = Path(root)
-        self.warnings: list[str] = []
+        self.warnings: list[str] = LoaderWarnings(self.root)
         dirs = find_camera_dirs(self.root)
         if dirs is None:
             raise InputError("no left/ + right/ (or cam0/ + cam1/) image folders", self.root)

@@ -15,7 +15,7 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.calibration import kitti_cam_offset, parse_kitti_calib
-from seedmap.io.common import RectifiedPairs, list_images, read_image_rgb, read_times_txt
+from seedmap.io.common import LoaderWarnings, RectifiedPairs, list_images, read_image_rgb, read_times_txt
 from seedmap.io.trajectory import read_kitti
 from seedmap.records import Trajectory
 
@@ -27,7 +27,7 @@ class KittiSequence(RectifiedPairs):
 
     def __init__(self, root: str | Path, poses: str | Path | None = None, fps: float = 10.0) -> None:
         self.root = Path(root)
-        self.warnings: list[str] = []
+        self.warnings: list[str] = LoaderWarnings(self.root)
         if (self.root / "image_2").is_dir() and (self.root / "image_3").is_dir():
             self.cams = (2, 3)
         elif (self.root / "image_0").is_dir() and (self.root / "image_1").is_dir():

@@ -28,7 +28,7 @@ import numpy as np
 from seedmap.errors import InputError
 from seedmap.io.calibration import StereoRig, _calib_from_P, _rig_from_rect, check_image_size, \
     load_rig, rectify
-from seedmap.io.common import decode_image_bytes, to_rgb
+from seedmap.io.common import LoaderWarnings, decode_image_bytes, to_rgb
 from seedmap.io.sync import match_stamps
 from seedmap.records import StereoFrame, Trajectory
 
@@ -218,7 +218,7 @@ class RosbagSequence:
                  sync_tol_s: float = 0.01, rectified: bool | None = None, rectify_alpha: float = 0.0) -> None:
         self.path = Path(path)
         self.root = self.path
-        self.warnings: list[str] = []
+        self.warnings: list[str] = LoaderWarnings(self.path)
         self._gray_topics: set[str] = set()
         self._reader = _open_reader(self.path)
         try:
