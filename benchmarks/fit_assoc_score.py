@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from seedmap.associate.semantic import (  # noqa: E402
     CUE_NAMES,
+    TEMPORAL_CUE_NAMES,
     ScoreModel,
     SeedMatcher,
     assign_logits,
@@ -86,13 +87,16 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> list[di
 
 
 def fit(frames: list[dict], features: tuple[str, ...], hidden: tuple[int, ...], epochs: int, seed: int,
-        lr: float = 3e-3, weight_decay: float = 1e-5, batch: int = 4096) -> ScoreModel:
-    """Fit the network on labelled candidates (deterministic for a given ``seed``, one CPU thread)."""
+        lr: float = 3e-3, weight_decay: float = 1e-5, batch: int = 4096, kind: str = "stereo") -> ScoreModel:
+    """Fit the network on labelled candidates (deterministic for a given ``seed``, one CPU thread).
+    ``kind``: "stereo" (columns of ``CUE_NAMES``) or "temporal" (``TEMPORAL_CUE_NAMES``, used by
+    benchmarks/fit_assoc_temporal.py)."""
     import torch
 
     torch.set_num_threads(1)
     torch.manual_seed(seed)
-    cols = [CUE_NAMES.index(c) for c in features]
+    names = TEMPORAL_CUE_NAMES if kind == "temporal" else CUE_NAMES
+    cols = [names.index(c) for c in features]
     x = np.concatenate([f["X"][:, cols] for f in frames]).astype(np.float64)
     y = np.concatenate([f["y"] for f in frames]).astype(np.float32)
     mean, std = x.mean(0), x.std(0) + 1e-6
@@ -121,7 +125,7 @@ def fit(frames: list[dict], features: tuple[str, ...], hidden: tuple[int, ...], 
               for m in net if isinstance(m, torch.nn.Linear)]
     info = {"hidden": list(hidden), "epochs": epochs, "seed": seed, "lr": lr, "weight_decay": weight_decay,
             "candidates": int(len(y)), "positives": int(y.sum()), "train_log_loss": round(full, 5)}
-    return ScoreModel(tuple(features), mean, std, layers, info)
+    return ScoreModel(tuple(features), mean, std, layers, info, kind)
 
 
 def score(frames: list[dict], model: ScoreModel, min_logit: float, margin: float) -> dict:

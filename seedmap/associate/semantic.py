@@ -201,6 +201,27 @@ oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stay
   images (benchmarks/bench_slam.py) it is less precise than the learned score: the network knows
   rendered seeds only.
 
+* ``temporal_score="mlp"`` (session 8, with ``refine="field"``; :func:`mlp_temporal_assign`,
+  :meth:`SeedMatcher.temporal_candidates`): the temporal pairs are chosen by a network of the same
+  shape as the stereo one over the 19 cues of :func:`temporal_cue_candidates` instead of the
+  ``field`` path's cost, cap and ratio test. Candidates lie within ``temporal_mlp_gate_sigma`` (8)
+  of the field path's local shift field (:func:`field_estimate`); cues: u / v residuals from it,
+  a *parallax* residual (a static seed's shift is ``alpha * disparity + beta``, so a seed nearer
+  than its neighbours leaves the smooth field by ``alpha`` times its disparity deviation), the
+  change of disparity between the frames (the camera travels along the rows: a seed's depth stays),
+  the disparity deviation from the neighbours, the paper's neighbour cost and the appearance cues
+  of the stereo network between the two left images (grey NCC at 7 / 11 / 19 px, colour NCC,
+  chromaticity, brightness, ellipse sizes, crowding). Disparities are the dense SGBM disparity when
+  ``stereo_prior="sgbm"`` ran, else the disparity of the keypoint's stereo match. Weights
+  ``weights/temporal_score_s8.json`` fitted by ``benchmarks/fit_assoc_temporal.py`` on the
+  gt-oracle candidates of seeds 3, 11 and 16-21 (never 13-15, 25, 26); ``temporal_mlp_min_logit``
+  1.0 keeps P >= 0.99 and gated R >= 0.96 on every leave-one-range-out fold (grid -1 .. 2). Why
+  (session-8 anatomy of the ``field`` path, gated true temporal pairs, fit ranges): 0.3-6 % fall
+  outside the 3.5-sigma field window (a seed at another depth than its neighbours, or its centre
+  moved by occlusion), another 1.5-3 % over the cost cap (the paper's neighbour ratio is
+  ``impossible_cost`` when a neighbour set is empty in one frame only), 0.1-0.2 % in the assignment
+  and ratio test, 0.4-2 % to the NCC check; the network's window holds 98.7-100 % of them.
+
 The SLAM pipeline (``seedmap.slam.config.SlamAssociationConfig``) uses ``refine="field"`` and the
 constant-velocity prediction by default (``stereo_carry`` off, ``stereo_prior="none"``).
 """
@@ -356,6 +377,20 @@ class SemanticConfig(ConfigModel):
     #: temporal verification: drop temporal pairs whose patch NCC is below this (-1 = off; needs
     #: the images, i.e. SeedMatcher.features)
     temporal_min_ncc: float = Field(-1.0, ge=-1.0, le=1.0)
+    # session 8: a learned temporal score (see the module docstring and :func:`mlp_temporal_assign`)
+    #: how temporal candidates are chosen: "field" (the ``refine`` method) or "mlp" (a small network
+    #: over the cues of :func:`temporal_cue_candidates`; needs the images, i.e. SeedMatcher.features,
+    #: and ``refine="field"``)
+    temporal_score: Literal["field", "mlp"] = "field"
+    #: the temporal network's weights (written by benchmarks/fit_assoc_temporal.py; a file name in
+    #: seedmap/associate/weights/ or a path)
+    temporal_score_model: str = "temporal_score_s8.json"
+    #: candidate window around the field (normalised residual, units of field_temporal_sigma_px)
+    temporal_mlp_gate_sigma: float = Field(8.0, gt=0)
+    #: a temporal pair is kept when the network's log-odds is at least this ...
+    temporal_mlp_min_logit: float = 1.0
+    #: ... and exceeds every competitor's sharing one of its keypoints by this much
+    temporal_mlp_margin: float = Field(1.0, ge=0)
 
 
 def full_res_scale(width: int) -> float:
@@ -779,6 +814,19 @@ def field_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray,
     n, m = len(ka), len(kb)
     if n == 0 or m == 0:
         return Matches()
+    pred = field_estimate(ka, kb, gate, lo, hi, sigma, cfg, scale, image_shape, fixed_v, init, iters)
+    ia, ib, res = _field_candidates(ka, kb, pred, np.asarray(sigma, np.float64), gate, cfg.field_gate_sigma)
+    return _assign_in_prior(fa, fb, sa, sb, ia, ib, res, n, m, cfg, cfg.field_ratio)
+
+
+def field_estimate(ka: np.ndarray, kb: np.ndarray, gate, lo: np.ndarray, hi: np.ndarray, sigma: np.ndarray,
+                   cfg: SemanticConfig, scale: float, image_shape: tuple[float, float], fixed_v: float | None = None,
+                   init: np.ndarray | None = None, iters: int | None = None) -> np.ndarray:
+    """Steps 1-2 of :func:`field_assign` (same arguments): the local displacement field (N, 2; image
+    px) at every keypoint of ``ka``, from the coarse histogram (or ``init``) refined by the mutual
+    best, ratio-tested candidate pairs. Also the prior of the learned temporal score
+    (:func:`temporal_cue_candidates`)."""
+    n, m = len(ka), len(kb)
     s_inv = 1.0 / scale
     if init is not None:
         # a field known from elsewhere (stereo-temporal loop): only its correction is voted for, in
@@ -792,7 +840,6 @@ def field_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray,
                             cfg.field_coarse_points, image_shape)
     if fixed_v is not None:
         pred[:, 1] = fixed_v
-    w = cfg.field_weight
     coarse_sig = np.full(2, cfg.field_coarse_tol_px * s_inv / cfg.field_gate_sigma)
     iters = max(0, cfg.field_iters if iters is None else iters)
     for it in range(iters):
@@ -806,8 +853,7 @@ def field_assign(ka: np.ndarray, kb: np.ndarray, fa: np.ndarray, fb: np.ndarray,
         pred = local_field(ka, sure, kb, cfg.field_k, pred)
         if fixed_v is not None:
             pred[:, 1] = fixed_v
-    ia, ib, res = _field_candidates(ka, kb, pred, np.asarray(sigma, np.float64), gate, cfg.field_gate_sigma)
-    return _assign_in_prior(fa, fb, sa, sb, ia, ib, res, n, m, cfg, cfg.field_ratio)
+    return pred
 
 
 def _assign_in_prior(fa: np.ndarray, fb: np.ndarray, sa: np.ndarray, sb: np.ndarray, ia: np.ndarray,
@@ -1016,32 +1062,48 @@ def cue_features(ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndarray,
       occluded seeds are small and their prior least reliable).
 
     Missing ellipse areas give 0 for the three area cues."""
-    from seedmap.associate.disparity import disparity_edge_range, occlusion_margin, patch_ncc
+    from seedmap.associate.disparity import disparity_edge_range, occlusion_margin
 
     s = full_res_scale(width)
-    small, mid, large = cue_patch_sizes(width, cfg.patch_px)
-    L, R = cues.left, cues.right
-    base = score_features(ka, kb, ia, ib, pred, sig, local_pred, patch_ncc(L.patches[mid], R.patches[mid], ia, ib),
-                          sa, sb, cfg, s)
-    n7 = patch_ncc(L.patches[small], R.patches[small], ia, ib)
-    n19 = patch_ncc(L.patches[large], R.patches[large], ia, ib)
-    nc = patch_ncc(L.colour, R.colour, ia, ib)
-    chroma = np.abs(L.chroma[ia] - R.chroma[ib]).sum(1)
-    bright = np.abs(np.log((L.brightness[ia] + 1.0) / (R.brightness[ib] + 1.0)))
+    a = _pair_appearance(cues.left, cues.right, ka, kb, ia, ib, width, cfg.patch_px)
+    base = score_features(ka, kb, ia, ib, pred, sig, local_pred, a["ncc"], sa, sb, cfg, s)
     dimg = cues.disparity_image
     half = max(1, int(round(CUE_EDGE_HALF_PX / s)))
     edge = disparity_edge_range(dimg, ka, half)[ia] * s
     occ = occlusion_margin(dimg, ka[ia, 0], ka[ia, 1], ka[ia, 0] - kb[ib, 0], max(2, int(round(CUE_OCCLUSION_REACH_PX / s))))
     occ = np.clip(np.where(np.isfinite(occ), occ * s, -6.0), -6.0, 30.0) / 15.0
+    return np.c_[base, 1.0 - a["ncc_small"], 1.0 - a["ncc_large"], 1.0 - a["ncc_colour"], a["chroma"], a["brightness"],
+                 np.minimum(edge, 90.0) / 30.0, occ, a["area_ratio"], a["n_a"], a["n_b"], a["log_area_a"],
+                 a["log_area_b"]]
+
+
+def _pair_appearance(L: ImageCues, R: ImageCues, ka: np.ndarray, kb: np.ndarray, ia: np.ndarray, ib: np.ndarray,
+                     width: int, patch_px: float) -> dict[str, np.ndarray]:
+    """Appearance cues of the candidate pairs ``(ka[ia], kb[ib])`` shared by the stereo
+    (:func:`cue_features`) and temporal (:func:`temporal_cue_candidates`) scores: grey NCC at the
+    three patch sizes, colour NCC, chromaticity L1 distance, |log brightness ratio|, |log ellipse
+    area ratio| (0 where unknown), each keypoint's number of candidates (crowding) and
+    log(1 + ellipse area in full-res px^2) (0 where unknown)."""
+    from seedmap.associate.disparity import patch_ncc
+
+    s = full_res_scale(width)
+    small, mid, large = cue_patch_sizes(width, patch_px)
     al = np.nan_to_num(L.area[ia] * s * s, nan=-1.0)
     ar = np.nan_to_num(R.area[ib] * s * s, nan=-1.0)
     known = (al >= 0) & (ar >= 0)
-    area_ratio = np.where(known, np.abs(np.log((np.maximum(al, 0) + 1.0) / (np.maximum(ar, 0) + 1.0))), 0.0)
-    na = np.bincount(ia, minlength=len(ka))[ia].astype(np.float64)
-    nb = np.bincount(ib, minlength=len(kb))[ib].astype(np.float64)
-    return np.c_[base, 1.0 - n7, 1.0 - n19, 1.0 - nc, chroma, bright, np.minimum(edge, 90.0) / 30.0, occ, area_ratio,
-                 na, nb, np.where(al >= 0, np.log1p(np.maximum(al, 0)), 0.0),
-                 np.where(ar >= 0, np.log1p(np.maximum(ar, 0)), 0.0)]
+    return {
+        "ncc": patch_ncc(L.patches[mid], R.patches[mid], ia, ib),
+        "ncc_small": patch_ncc(L.patches[small], R.patches[small], ia, ib),
+        "ncc_large": patch_ncc(L.patches[large], R.patches[large], ia, ib),
+        "ncc_colour": patch_ncc(L.colour, R.colour, ia, ib),
+        "chroma": np.abs(L.chroma[ia] - R.chroma[ib]).sum(1),
+        "brightness": np.abs(np.log((L.brightness[ia] + 1.0) / (R.brightness[ib] + 1.0))),
+        "area_ratio": np.where(known, np.abs(np.log((np.maximum(al, 0) + 1.0) / (np.maximum(ar, 0) + 1.0))), 0.0),
+        "n_a": np.bincount(ia, minlength=len(ka))[ia].astype(np.float64),
+        "n_b": np.bincount(ib, minlength=len(kb))[ib].astype(np.float64),
+        "log_area_a": np.where(al >= 0, np.log1p(np.maximum(al, 0)), 0.0),
+        "log_area_b": np.where(ar >= 0, np.log1p(np.maximum(ar, 0)), 0.0),
+    }
 
 
 @dataclass
@@ -1049,17 +1111,28 @@ class ScoreModel:
     """A small fully connected network (ReLU) giving the log-odds that a candidate is the true
     partner from the cues named ``features`` (a subset of :data:`CUE_NAMES`), standardised with
     ``mean``/``std``. ``layers``: (weight (out, in), bias (out,)) per layer; the last layer has one
-    output. Written by ``benchmarks/fit_assoc_score.py`` as JSON (:meth:`save` / :meth:`load`)."""
+    output. Written by ``benchmarks/fit_assoc_score.py`` as JSON (:meth:`save` / :meth:`load`).
+    ``kind``: "stereo" (cues of :data:`CUE_NAMES`) or "temporal" (:data:`TEMPORAL_CUE_NAMES`,
+    session 8, ``benchmarks/fit_assoc_temporal.py``)."""
 
     features: tuple[str, ...]
     mean: np.ndarray
     std: np.ndarray
     layers: list[tuple[np.ndarray, np.ndarray]]
     info: dict
+    kind: str = "stereo"
+
+    @property
+    def cue_names(self) -> tuple[str, ...]:
+        """The column names of the cue matrices this model reads."""
+        return TEMPORAL_CUE_NAMES if self.kind == "temporal" else CUE_NAMES
 
     def logits(self, cues: np.ndarray) -> np.ndarray:
-        """Log-odds (K,) of the candidates whose :func:`cue_features` rows are ``cues`` (K, len(CUE_NAMES))."""
-        cols = [CUE_NAMES.index(f) for f in self.features]
+        """Log-odds (K,) of the candidates whose cue rows are ``cues`` (K, len(cue_names)):
+        :func:`cue_features` rows for a stereo model, :func:`temporal_cue_candidates` rows for a
+        temporal one."""
+        names = self.cue_names
+        cols = [names.index(f) for f in self.features]
         h = (np.asarray(cues, np.float64)[:, cols] - self.mean) / self.std
         for k, (w, b) in enumerate(self.layers):
             h = h @ w.T + b
@@ -1073,7 +1146,7 @@ class ScoreModel:
 
         from seedmap.io.atomic import atomic_write_text
 
-        d = {"features": list(self.features), "mean": self.mean.tolist(), "std": self.std.tolist(),
+        d = {"kind": self.kind, "features": list(self.features), "mean": self.mean.tolist(), "std": self.std.tolist(),
              "layers": [{"weight": w.tolist(), "bias": b.tolist()} for w, b in self.layers], "info": self.info}
         atomic_write_text(Path(path), json.dumps(d) + "\n")
 
@@ -1091,12 +1164,15 @@ class ScoreModel:
         try:
             d = json.loads(p.read_text())
             feats = tuple(d["features"])
-            bad = [f for f in feats if f not in CUE_NAMES]
+            kind = str(d.get("kind", "stereo"))
+            if kind not in ("stereo", "temporal"):
+                raise ValueError(f"unknown kind {kind!r}")
+            bad = [f for f in feats if f not in (TEMPORAL_CUE_NAMES if kind == "temporal" else CUE_NAMES)]
             if bad:
                 raise ValueError(f"unknown cues {bad}")
             layers = [(np.asarray(l["weight"], np.float64), np.asarray(l["bias"], np.float64)) for l in d["layers"]]
             model = ScoreModel(feats, np.asarray(d["mean"], np.float64), np.asarray(d["std"], np.float64), layers,
-                               dict(d.get("info", {})))
+                               dict(d.get("info", {})), kind)
         except (ValueError, KeyError, TypeError) as e:
             raise SeedmapError(f"{p}: not an association score model ({e})") from None
         return model
@@ -1105,11 +1181,15 @@ class ScoreModel:
 _MODELS: dict[str, ScoreModel] = {}
 
 
-def score_model(name: str) -> ScoreModel:
-    """:meth:`ScoreModel.load`, cached per name (the matcher calls it every frame)."""
+def score_model(name: str, kind: str = "stereo") -> ScoreModel:
+    """:meth:`ScoreModel.load`, cached per name (the matcher calls it every frame); a model of another
+    ``kind`` than asked for is a user error."""
     if name not in _MODELS:
         _MODELS[name] = ScoreModel.load(name)
-    return _MODELS[name]
+    model = _MODELS[name]
+    if model.kind != kind:
+        raise SeedmapError(f"{name}: a {model.kind} association score model, but a {kind} one is needed")
+    return model
 
 
 def stereo_cue_candidates(kl: np.ndarray, kr: np.ndarray, width: int, gates: GateConfig | None,
@@ -1165,6 +1245,117 @@ def mlp_prior_assign(kl: np.ndarray, kr: np.ndarray, width: int, gates: GateConf
         return Matches()
     t = score_model(cfg.score_model).logits(x)
     return assign_logits(ia, ib, t, len(kl), len(kr), cfg.mlp_min_logit, cfg.mlp_margin)
+
+
+# ----------------------------------------------------------------------------------------------
+# session 8: a learned temporal candidate score (temporal_score="mlp")
+# ----------------------------------------------------------------------------------------------
+
+#: The cues :func:`temporal_cue_candidates` computes for every temporal candidate pair, in column
+#: order (see there).
+TEMPORAL_CUE_NAMES = ("u_res2", "v_res2", "ncc", "parallax_res", "paper_cost", "ncc_small", "ncc_large",
+                      "ncc_colour", "chroma", "brightness", "area_ratio", "n_cand_prev", "n_cand_cur",
+                      "log_area_prev", "log_area_cur", "disp_change", "disp_dev", "u_res", "v_res")
+
+
+@dataclass
+class TemporalInputs:
+    """What the learned temporal score sees of one frame's left image: :class:`ImageCues` of its
+    keypoints and the disparity of each (image px, NaN = unknown; the dense SGBM disparity when the
+    ``sgbm`` prior ran, else the disparity of the keypoint's stereo match)."""
+
+    cues: ImageCues
+    disparity: np.ndarray
+
+
+def _filled_disparity(kp: np.ndarray, d: np.ndarray, k: int) -> np.ndarray | None:
+    """``d`` with unknown (NaN) entries replaced by the median of the ``k`` nearest known ones;
+    None with fewer than 3 known."""
+    d = np.asarray(d, np.float64).reshape(-1).copy()
+    known = np.isfinite(d)
+    if known.sum() < 3:
+        return None
+    if not known.all():
+        d[~known] = field_at(kp[known], d[known, None], kp[~known], k)[:, 0]
+    return d
+
+
+def temporal_cue_candidates(ka: np.ndarray, kb: np.ndarray, width: int, gates: GateConfig | None,
+                            cfg: SemanticConfig, prev: TemporalInputs, cur: TemporalInputs,
+                            predicted_shift: float | None = None, predicted_shift_v: float | None = None,
+                            sums: tuple[np.ndarray, np.ndarray] | None = None
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Temporal candidates ``(ia, ib)`` (previous left ``ka`` <-> current left ``kb``, image px) and
+    their cue rows (columns :data:`TEMPORAL_CUE_NAMES`): what :func:`mlp_temporal_assign` scores and
+    what ``benchmarks/fit_assoc_temporal.py`` labels with ground truth (one code path).
+
+    The prior is the ``field`` matching's local shift field (:func:`field_estimate`, the same
+    search box, gates and refinements as ``refine="field"``); candidates lie within
+    ``temporal_mlp_gate_sigma`` normalised residuals (units of ``field_temporal_sigma_px``) of it.
+    Cues: squared and absolute u / v residuals from the field; ``parallax_res``: the u residual
+    after the parallax correction ``alpha * (D - D_local)`` (a static seed shifts by
+    ``alpha * disparity + beta`` between frames, so a seed nearer or farther than its neighbours
+    leaves the smooth field by ``alpha`` times its disparity deviation; ``alpha`` = median field
+    shift / median disparity of the frame), in the same units, absolute, capped at 20;
+    ``disp_change``: |disparity at t - disparity at t-1| (the camera travels along the rows, so a
+    seed's depth barely changes; full-res px / 10, capped at 6); ``disp_dev``: |D - D_local| of the
+    previous keypoint (full-res px / 10, capped at 6); the paper's neighbour cost (as
+    :func:`score_features`) and the appearance cues of :func:`_pair_appearance` between the two
+    frames' left images. Why: the ``field`` path keeps a pair only when its residual is the best by
+    a ratio (``field_ratio``) inside 3.5 sigma; seeds at a depth edge or with a moved centre fail
+    that test although their appearance and depth identify them."""
+    g = (gates or GateConfig()).scaled(width)
+    ka = np.asarray(ka, np.float64).reshape(-1, 2)
+    kb = np.asarray(kb, np.float64).reshape(-1, 2)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(TEMPORAL_CUE_NAMES))))
+    if len(ka) < 3 or len(kb) < 3:
+        return empty
+    s = full_res_scale(width)
+    if sums is None:
+        sums = (neighbour_sums(ka * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk),
+                neighbour_sums(kb * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk))
+    gate, lo, hi, extent = _temporal_search(ka, kb, width, g, cfg, predicted_shift, predicted_shift_v)
+    sigma = np.asarray(cfg.field_temporal_sigma_px, np.float64) / s
+    pred = field_estimate(ka, kb, gate, lo, hi, sigma, cfg, s, extent)
+    ia, ib, _ = _field_candidates(ka, kb, pred, sigma, gate, cfg.temporal_mlp_gate_sigma)
+    if len(ia) == 0:
+        return empty
+    r = (kb[ib] - ka[ia] - pred[ia]) / sigma
+    da = _filled_disparity(ka, prev.disparity, cfg.field_k)
+    db = _filled_disparity(kb, cur.disparity, cfg.field_k)
+    if da is not None and db is not None:
+        d_loc = field_at(ka, da[:, None], ka, cfg.field_k)[:, 0]
+        alpha = float(np.median(pred[:, 0]) / max(float(np.median(da)), 1e-6))
+        par = r[:, 0] - alpha * (da[ia] - d_loc[ia]) / sigma[0]
+        change = np.minimum(np.abs(db[ib] - da[ia]) * s, 60.0) / 10.0
+        dev = np.minimum(np.abs(da[ia] - d_loc[ia]) * s, 60.0) / 10.0
+    else:  # no disparity: the parallax cues say nothing
+        par, change, dev = r[:, 0], np.zeros(len(ia)), np.zeros(len(ia))
+    pc = structure_cost(sums[0][ia], sums[1][ib], cfg.r, cfg.ratio_eps, cfg.impossible_cost) - 4.0 * cfg.r
+    a = _pair_appearance(prev.cues, cur.cues, ka, kb, ia, ib, width, cfg.patch_px)
+    x = np.c_[r[:, 0] ** 2, r[:, 1] ** 2, 1.0 - a["ncc"], np.minimum(np.abs(par), 20.0),
+              np.minimum(pc, 200.0) / 40.0, 1.0 - a["ncc_small"], 1.0 - a["ncc_large"], 1.0 - a["ncc_colour"],
+              a["chroma"], a["brightness"], a["area_ratio"], a["n_a"], a["n_b"], a["log_area_a"], a["log_area_b"],
+              change, dev, np.abs(r[:, 0]), np.abs(r[:, 1])]
+    return ia, ib, x
+
+
+def mlp_temporal_assign(ka: np.ndarray, kb: np.ndarray, width: int, gates: GateConfig | None, cfg: SemanticConfig,
+                        prev: TemporalInputs, cur: TemporalInputs, predicted_shift: float | None = None,
+                        predicted_shift_v: float | None = None,
+                        sums: tuple[np.ndarray, np.ndarray] | None = None) -> Matches:
+    """Temporal association (previous left ``ka`` <-> current left ``kb``) scored by a small network
+    (``temporal_score="mlp"``, session 8): the candidates of :func:`temporal_cue_candidates`, the
+    log-odds of ``temporal_score_model``, one-to-one assignment and ambiguity test as
+    :func:`assign_logits` with ``temporal_mlp_min_logit`` / ``temporal_mlp_margin``."""
+    ka = np.asarray(ka, np.float64).reshape(-1, 2)
+    kb = np.asarray(kb, np.float64).reshape(-1, 2)
+    ia, ib, x = temporal_cue_candidates(ka, kb, width, gates, cfg, prev, cur, predicted_shift, predicted_shift_v,
+                                        sums)
+    if len(ia) == 0:
+        return Matches()
+    t = score_model(cfg.temporal_score_model, "temporal").logits(x)
+    return assign_logits(ia, ib, t, len(ka), len(kb), cfg.temporal_mlp_min_logit, cfg.temporal_mlp_margin)
 
 
 def _disparity_prior(kl: np.ndarray, disparity: np.ndarray, cfg: SemanticConfig,
@@ -1314,6 +1505,29 @@ def match_stereo_keypoints(
     return assign_sparse(len(kl), len(kr), ia, ib, cost, cfg.max_cost)
 
 
+def _temporal_search(ka: np.ndarray, kb: np.ndarray, width: int, g: GateConfig, cfg: SemanticConfig,
+                     predicted_shift: float | None, predicted_shift_v: float | None):
+    """``(gate, lo, hi, extent)`` of the temporal ``field`` matching of ``ka`` (previous left, image
+    px) with ``kb`` (current left): the gate function of the horizontal-travel gates (``g`` already
+    scaled), the displacement box searched by the coarse field (around the constant-velocity
+    prediction when given, else the whole travel gate) and the image extent (u, v)."""
+    s = full_res_scale(width)
+    gate = _temporal_gate_fn(ka, kb, g, width)
+    vband = min(g.temporal_max_dy_px, g.temporal_post_max_dy_px)
+    if predicted_shift is not None:
+        tol = cfg.prediction_tol_px / s
+        pv = 0.0 if predicted_shift_v is None else float(predicted_shift_v)
+        lo = np.array([predicted_shift - tol, pv - vband])
+        hi = np.array([predicted_shift + tol, pv + vband])
+    else:
+        far = g.travel_sign * cfg.field_max_shift_px / s
+        near = g.travel_sign * g.temporal_min_shift_px
+        lo = np.array([min(far, near), -vband])
+        hi = np.array([max(far, near), vband])
+    extent = (float(width), float(max(ka[:, 1].max(), kb[:, 1].max())) + 1.0)
+    return gate, lo, hi, extent
+
+
 def match_temporal_keypoints(
     kp_prev: np.ndarray, kp_cur: np.ndarray, width: int, gates: GateConfig | None = None,
     cfg: SemanticConfig | None = None, predicted_shift: float | None = None,
@@ -1348,23 +1562,7 @@ def match_temporal_keypoints(
         sa = neighbour_sums(fa, cfg.delta_px, cfg.eps_px, va, chunk=cfg.chunk)
         sb = neighbour_sums(fb, cfg.delta_px, cfg.eps_px, vb, chunk=cfg.chunk)
     if cfg.refine == "field":
-        def gate(ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
-            return ((g.travel_sign * (kb[ib, 0] - ka[ia, 0]) >= g.temporal_min_shift_px)
-                    & (np.abs(kb[ib, 1] - ka[ia, 1]) <= min(g.temporal_max_dy_px, g.temporal_post_max_dy_px))
-                    & _inside(ka[ia, 0], width, g.temporal_border_px) & _inside(kb[ib, 0], width, g.temporal_border_px))
-
-        vband = min(g.temporal_max_dy_px, g.temporal_post_max_dy_px)
-        if predicted_shift is not None:
-            tol = cfg.prediction_tol_px / s
-            pv = 0.0 if predicted_shift_v is None else float(predicted_shift_v)
-            lo = np.array([predicted_shift - tol, pv - vband])
-            hi = np.array([predicted_shift + tol, pv + vband])
-        else:
-            far = g.travel_sign * cfg.field_max_shift_px / s
-            near = g.travel_sign * g.temporal_min_shift_px
-            lo = np.array([min(far, near), -vband])
-            hi = np.array([max(far, near), vband])
-        extent = (float(width), float(max(ka[:, 1].max(), kb[:, 1].max())) + 1.0)
+        gate, lo, hi, extent = _temporal_search(ka, kb, width, g, cfg, predicted_shift, predicted_shift_v)
         return field_assign(ka, kb, fa, fb, sa, sb, gate, lo, hi, np.asarray(cfg.field_temporal_sigma_px) / s,
                             cfg, s, extent, init=init_field, iters=iters)
     ia, ib = candidate_pairs(ka, kb, g.temporal_max_dy_px)
@@ -1790,6 +1988,8 @@ class SeedMatcher:
         self._disp_known: tuple[int, np.ndarray] | None = None
         #: patch descriptors of the last two frames' left keypoints (temporal NCC verification)
         self._patches: list[tuple[np.ndarray, np.ndarray]] = []
+        #: temporal_score="mlp": :class:`TemporalInputs` of the last two frames' left keypoints
+        self._temporal_inputs: list[tuple[np.ndarray, TemporalInputs]] = []
         #: keep the last frame's stereo inputs (detections, dense disparity at the left keypoints,
         #: :class:`StereoCues` when the sgbm prior ran) in ``last_stereo_inputs``: the score fit
         #: (benchmarks/fit_assoc_score.py) labels exactly what the matcher would score
@@ -1907,6 +2107,17 @@ class SeedMatcher:
                                           cues=cues if mlp else None)
         if self.keep_inputs:
             self.last_stereo_inputs = (det, disp, cues)
+        if self.cfg.temporal_score == "mlp":
+            c0, t0 = time.process_time(), time.perf_counter()
+            left = cues.left if cues is not None else image_cues(frame.left, det.left.keypoints, det.left.ellipses,
+                                                                 self.calib.width, self.cfg.patch_px)
+            d = disp
+            if d is None:  # no dense prior: the disparity of each left keypoint's stereo match
+                d = np.full(len(f.kp_left), np.nan)
+                d[f.stereo.idx_a] = f.kp_left[f.stereo.idx_a, 0] - f.kp_right[f.stereo.idx_b, 0]
+            self._temporal_inputs = [*self._temporal_inputs[-1:], (f.kp_left, TemporalInputs(left, d))]
+            t_prior["temporal_cues_cpu"] = (time.process_time() - c0) * 1e3
+            t_prior["temporal_cues"] = (time.perf_counter() - t0) * 1e3
         for k, v in t_prior.items():  # the prior is part of the stereo association's cost
             f.timings_ms[k] = v
             if k.endswith("_cpu"):
@@ -1977,15 +2188,46 @@ class SeedMatcher:
             self._last_shift = float(np.median(d[:, 0]))
             self._last_shift_v = float(np.median(d[:, 1]))
 
+    def _cached_temporal_inputs(self, kp: np.ndarray) -> TemporalInputs | None:
+        for arr, ti in self._temporal_inputs:
+            if arr is kp:
+                return ti
+        return None
+
+    def temporal_candidates(self, prev: FrameFeatures, cur: FrameFeatures
+                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The learned temporal score's candidates and cue rows of ``prev`` -> ``cur``
+        (:func:`temporal_cue_candidates` with this matcher's prediction and caches), or None when
+        the frames' :class:`TemporalInputs` are not known (``temporal_score`` not "mlp", or frames
+        not built by :meth:`features`). Used by :meth:`match_temporal` and the score fit."""
+        ta, tb = self._cached_temporal_inputs(prev.kp_left), self._cached_temporal_inputs(cur.kp_left)
+        if ta is None or tb is None:
+            return None
+        pred, pred_v = self._prediction()
+        sums = (self._cached_sums(prev.kp_left), self._cached_sums(cur.kp_left))
+        return temporal_cue_candidates(prev.kp_left, cur.kp_left, self.calib.width, self.gates, self.cfg, ta, tb,
+                                       pred, pred_v, sums)
+
+    def _prediction(self) -> tuple[float | None, float | None]:
+        """The constant-velocity prediction (u, v) of the temporal shift, when the config uses one."""
+        use = self.cfg.temporal_prediction or self.cfg.neighbours == "overlap"
+        return (self._last_shift if use else None), (self._last_shift_v if use else None)
+
     def match_temporal(self, prev: FrameFeatures, cur: FrameFeatures) -> Matches:
         if self._loop is not None and self._loop[0] is prev and self._loop[1] is cur:
             return self._loop[2].temporal  # computed with cur's stereo by the loop
-        use = self.cfg.temporal_prediction or self.cfg.neighbours == "overlap"
-        pred = self._last_shift if use else None
-        pred_v = self._last_shift_v if use else None
+        pred, pred_v = self._prediction()
         sums = (self._cached_sums(prev.kp_left), self._cached_sums(cur.kp_left))
-        m = match_temporal_keypoints(prev.kp_left, cur.kp_left, self.calib.width, self.gates, self.cfg, pred,
-                                     pred_v, sums=sums)
+        cand = self.temporal_candidates(prev, cur) if (self.cfg.temporal_score == "mlp"
+                                                       and self.cfg.refine == "field") else None
+        if cand is not None:
+            ia, ib, x = cand
+            t = score_model(self.cfg.temporal_score_model, "temporal").logits(x) if len(ia) else np.zeros(0)
+            m = assign_logits(ia, ib, t, len(prev.kp_left), len(cur.kp_left), self.cfg.temporal_mlp_min_logit,
+                              self.cfg.temporal_mlp_margin)
+        else:
+            m = match_temporal_keypoints(prev.kp_left, cur.kp_left, self.calib.width, self.gates, self.cfg, pred,
+                                         pred_v, sums=sums)
         if self.cfg.temporal_min_ncc > -1.0 and len(m):
             da, db = self._cached_patches(prev.kp_left), self._cached_patches(cur.kp_left)
             if da is not None and db is not None:
@@ -2008,3 +2250,4 @@ class SeedMatcher:
         self._prev_flow = None
         self._disp_known = None
         self._patches = []
+        self._temporal_inputs = []

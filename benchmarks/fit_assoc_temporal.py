@@ -1,0 +1,202 @@
+"""Fit the temporal candidate score of ``association.temporal_score="mlp"`` (session 8), reproducibly.
+
+What it does, per rendered range (``gt`` oracle keypoints, which carry ground-truth seed ids):
+run the matcher of the session-7 evaluation (``stereo_prior=sgbm``, ``prior_score=mlp``) frame
+after frame with ``temporal_score=mlp`` (so it keeps each frame's
+:class:`~seedmap.associate.semantic.TemporalInputs`); for every consecutive pair of frames the
+candidates and cues are those :meth:`SeedMatcher.temporal_candidates` gives the matcher (one code
+path), labelled 1 when both keypoints carry the same seed id. The constant-velocity prediction is
+driven by the ``field`` temporal matching, as in ``seedmap eval associate`` without the network.
+The network (two small ReLU hidden layers, torch, one thread, every random choice from ``--seed``)
+is fitted by ``fit_assoc_score.fit`` and written as JSON for
+:class:`~seedmap.associate.semantic.ScoreModel` (``kind="temporal"``). ``--cv`` also fits
+leave-one-range-out models and reports each held-out range's temporal precision / recall over
+gated pairs at a grid of ``temporal_mlp_min_logit`` values.
+
+It also writes the *anatomy* of the ``field`` temporal path on every range (where the gated true
+pairs are lost: outside the field window, the assignment's cost cap, a conflict in the assignment,
+the ambiguity (ratio) test, the NCC check at 0.3) and the share of gated true pairs inside the
+network's wider window.
+
+Usage (session 8; ~1 min CPU per range to collect, cached in ``--cache``)::
+
+    nice -n 10 .venv/bin/python benchmarks/fit_assoc_temporal.py data/slam_r1 data/assoc_s11 data/assoc_s16 \\
+        data/assoc_s17 data/assoc_s18 data/assoc_s19 data/assoc_s20 data/assoc_s21 \\
+        --out seedmap/associate/weights/temporal_score_s8.json --cv
+
+Never fit on the evaluation ranges (seeds 13, 14, 15, 25, 26).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from fit_assoc_score import fit, score  # noqa: E402
+
+from seedmap.associate.semantic import (  # noqa: E402
+    TEMPORAL_CUE_NAMES,
+    SeedMatcher,
+    _assign_in_prior,
+    _field_candidates,
+    _temporal_search,
+    assign_capped,
+    field_estimate,
+    full_res_scale,
+    match_temporal_keypoints,
+    pair_cost,
+)
+
+#: the anatomy's stages, in order (each counts the gated true pairs still alive after it)
+STAGES = ("gated", "in_field_window", "under_cost_cap", "assigned", "ratio_test", "ncc_0.3")
+
+
+def _anatomy(matcher: SeedMatcher, prev, cur, pred_uv, width: int, true_a: np.ndarray, true_b: np.ndarray,
+             window_pairs: set) -> dict:
+    """Gated true pairs ``(true_a, true_b)`` alive after each stage of the ``field`` temporal path."""
+    from seedmap.associate.disparity import patch_ncc
+
+    cfg, g = matcher.cfg, matcher.gates.scaled(width)
+    ka, kb = prev.kp_left, cur.kp_left
+    s = full_res_scale(width)
+    gate, lo, hi, extent = _temporal_search(ka, kb, width, g, cfg, *pred_uv)
+    sigma = np.asarray(cfg.field_temporal_sigma_px, np.float64) / s
+    pred = field_estimate(ka, kb, gate, lo, hi, sigma, cfg, s, extent)
+    ia, ib, res = _field_candidates(ka, kb, pred, sigma, gate, cfg.field_gate_sigma)
+    n, m = len(ka), len(kb)
+    sums = (matcher._cached_sums(ka), matcher._cached_sums(kb))
+    cost = pair_cost(ka * s, kb * s, sums[0], sums[1], cfg, ia, ib) + cfg.field_weight * res * res
+    cap = cfg.max_cost + cfg.field_weight * cfg.field_gate_sigma ** 2
+    key = lambda a, b: a.astype(np.int64) * m + b  # noqa: E731
+    tk = key(true_a, true_b)
+    cand = dict(zip(key(ia, ib).tolist(), cost.tolist()))
+    in_win = np.array([k in cand for k in tk.tolist()], bool)
+    under = np.array([k in cand and cand[k] <= cap for k in tk.tolist()], bool)
+    assigned = assign_capped(n, m, ia, ib, cost, cap)
+    ak = set(key(assigned.idx_a, assigned.idx_b).tolist())
+    final = _assign_in_prior(ka * s, kb * s, sums[0], sums[1], ia, ib, res, n, m, cfg, cfg.field_ratio)
+    fk = set(key(final.idx_a, final.idx_b).tolist())
+    in_assigned = np.array([k in ak for k in tk.tolist()], bool)
+    in_final = np.array([k in fk for k in tk.tolist()], bool)
+    ta, tb = matcher._cached_temporal_inputs(ka), matcher._cached_temporal_inputs(kb)
+    mid = matcher._patch_size()
+    ncc = patch_ncc(ta.cues.patches[mid], tb.cues.patches[mid], true_a, true_b)
+    return {"gated": len(tk), "in_field_window": int(in_win.sum()), "under_cost_cap": int(under.sum()),
+            "assigned": int(in_assigned.sum()), "ratio_test": int(in_final.sum()),
+            "ncc_0.3": int((in_final & (ncc >= 0.3)).sum()),
+            "in_mlp_window": int(sum(k in window_pairs for k in tk.tolist()))}
+
+
+def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[list[dict], dict]:
+    """Labelled temporal candidates of every consecutive frame pair of ``dataset`` (dicts with
+    ``ia, ib, X, y, n, m, gated``) and the range's anatomy counts (summed over frame pairs)."""
+    if cache is not None:
+        f = cache / f"temporal_{dataset.name}.npz"
+        if f.is_file():
+            z = np.load(f, allow_pickle=True)
+            return list(z["frames"]), json.loads(str(z["anatomy"]))
+    from seedmap.config import load_config
+    from seedmap.eval.associate_metrics import temporal_gate
+    from seedmap.io import open_dataset
+    from seedmap.slam.config import SlamConfig
+    from seedmap.slam.pipeline import _detector_for
+
+    cfg = load_config(SlamConfig, None, ["association.stereo_prior=sgbm", "association.prior_score=mlp",
+                                         "association.temporal_score=mlp"])
+    ds = open_dataset(dataset)
+    det = _detector_for("gt", dataset, cfg.detect)
+    matcher = SeedMatcher(ds.calib, detector=det, cfg=cfg.association, gates=cfg.gates)
+    tg = temporal_gate(ds.calib.width, cfg.gates)
+    w = ds.calib.width
+    out, anatomy = [], {k: 0 for k in (*STAGES, "in_mlp_window")}
+    prev = None
+    for i in range(len(ds)):
+        f = matcher.features(ds[i])
+        if prev is not None:
+            pred_uv = matcher._prediction()
+            cand = matcher.temporal_candidates(prev, f)
+            ia, ib, x = cand
+            ida, idb = prev.seed_ids_left, f.seed_ids_left
+            y = (ida[ia] == idb[ib]) & (ida[ia] >= 0)
+            common, pa, pb = np.intersect1d(ida[ida >= 0], idb[idb >= 0], return_indices=True)
+            pa, pb = np.flatnonzero(ida >= 0)[pa], np.flatnonzero(idb >= 0)[pb]
+            ok = tg(prev.kp_left[pa], f.kp_left[pb]) if len(common) else np.zeros(0, bool)
+            out.append(dict(ia=ia, ib=ib, X=x.astype(np.float32), y=y, n=len(prev.kp_left), m=len(f.kp_left),
+                            gated=int(ok.sum())))
+            win = set((ia.astype(np.int64) * len(f.kp_left) + ib).tolist())
+            a = _anatomy(matcher, prev, f, pred_uv, w, pa[ok], pb[ok], win)
+            for k, v in a.items():
+                anatomy[k] += v
+            # drive the constant-velocity prediction with the field matching (what eval associate does)
+            m = match_temporal_keypoints(prev.kp_left, f.kp_left, w, matcher.gates, matcher.cfg, *pred_uv,
+                                         sums=(matcher._cached_sums(prev.kp_left), matcher._cached_sums(f.kp_left)))
+            matcher._update_shift(prev.kp_left, f.kp_left, m)
+            if progress:
+                print(f"  {dataset.name} frames {i - 1}-{i}: {len(ia)} candidates, {int(y.sum())} true, "
+                      f"{int(ok.sum())} gated true pairs", flush=True)
+        prev = f
+    if cache is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(cache / f"temporal_{dataset.name}.npz", frames=np.array(out, dtype=object),
+                            anatomy=json.dumps(anatomy))
+    return out, anatomy
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("ranges", nargs="+", type=Path, help="rendered ranges to fit on (seedmap layout with gt/)")
+    ap.add_argument("--out", type=Path, required=True, help="model JSON")
+    ap.add_argument("--cache", type=Path, default=Path("data/assoc_fit_cache"), help="candidate cache folder")
+    ap.add_argument("--features", default=",".join(TEMPORAL_CUE_NAMES), help="comma-separated subset of the cues")
+    ap.add_argument("--hidden", default="32,16")
+    ap.add_argument("--epochs", type=int, default=30)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--margin", type=float, default=1.0)
+    ap.add_argument("--cv", action="store_true", help="also leave-one-range-out scores")
+    ap.add_argument("--report", type=Path, default=Path("benchmarks/results/fit_assoc_temporal.json"),
+                    help="JSON report")
+    a = ap.parse_args(argv)
+    t0, c0 = time.time(), time.process_time()
+    feats = tuple(x for x in a.features.split(",") if x)
+    hidden = tuple(int(x) for x in a.hidden.split(",") if x)
+    data, anatomy = {}, {}
+    for r in a.ranges:
+        data[r.name], anatomy[r.name] = collect(r, a.cache)
+        an = anatomy[r.name]
+        print(f"{r.name} field-path anatomy (gated true pairs alive): "
+              + ", ".join(f"{k} {an[k]} ({an[k] / max(an['gated'], 1):.3f})" for k in an), flush=True)
+    grid = (-1.0, 0.0, 0.5, 1.0, 1.5, 2.0)
+    report: dict = {"ranges": [str(r) for r in a.ranges], "features": list(feats), "hidden": list(hidden),
+                    "epochs": a.epochs, "seed": a.seed, "margin": a.margin, "field_anatomy": anatomy}
+    if a.cv and len(data) > 1:
+        cv = {}
+        for held in data:
+            train = [f for n, fr in data.items() if n != held for f in fr]
+            mdl = fit(train, feats, hidden, a.epochs, a.seed, kind="temporal")
+            cv[held] = {str(t): score(data[held], mdl, t, a.margin) for t in grid}
+            print(f"held out {held}: " + ", ".join(f"t>={t}: P {v['precision']:.4f} R {v['recall_gated']:.4f}"
+                                                  for t, v in cv[held].items()), flush=True)
+        report["leave_one_out"] = cv
+    model = fit([f for fr in data.values() for f in fr], feats, hidden, a.epochs, a.seed, kind="temporal")
+    model.info["ranges"] = [r.name for r in a.ranges]
+    report["in_sample"] = {n: {str(t): score(fr, model, t, a.margin) for t in grid} for n, fr in data.items()}
+    model.save(a.out)
+    report["cpu_s"] = round(time.process_time() - c0, 1)
+    report["wall_s"] = round(time.time() - t0, 1)
+    from seedmap.io.atomic import atomic_write_text
+
+    atomic_write_text(a.report, json.dumps(report, indent=1) + "\n")
+    print(f"model {a.out}, report {a.report} ({report['cpu_s']} s CPU)")
+
+
+if __name__ == "__main__":
+    main()
