@@ -206,3 +206,56 @@ def test_loader_warnings_are_printed_by_the_commands(tmp_path, monkeypatch, caps
 
     seq = open_dataset(ds)
     assert any("frame index" in w for w in seq.warnings)  # the list API is unchanged
+
+
+# ---- messages about real layouts ----------------------------------------------------------------------------------
+
+def _kitti(root: Path, p3_tx: float) -> Path:
+    """A KITTI odometry folder (image_2/ + image_3/, calib.txt P0..P3, times.txt) of two textured frames."""
+    import cv2
+
+    ds = _tiny_dataset(root.with_name(root.name + "_src"))
+    for cam, kd in (("left", "image_2"), ("right", "image_3")):
+        (root / kd).mkdir(parents=True)
+        for p in sorted((ds / cam).glob("*.png")):
+            cv2.imwrite(str(root / kd / p.name), cv2.imread(str(p)))
+    P = "120 0 80 {} 0 120 60 0 0 0 1 0"
+    (root / "calib.txt").write_text("".join(f"P{k}: {P.format(t)}\n" for k, t in ((0, 0), (1, p3_tx), (2, 0), (3, p3_tx))))
+    (root / "times.txt").write_text("0.0\n0.1\n")
+    return root
+
+
+def test_real_layout_messages(tmp_path, monkeypatch, capfd):
+    from seedmap.io import open_dataset
+    from seedmap.io.common import check_timestamps
+
+    # KITTI: a right projection with +fx*b said "P2[0,3] = 12" (P2 is KITTI's LEFT colour camera) and a zero
+    # baseline was blamed on swapped cameras
+    with pytest.raises(InputError, match=r"-0.1 m \(right camera's projection P\[0,3\] - left's = 12;.*swapped"):
+        open_dataset(_kitti(tmp_path / "pos", 12.0))
+    with pytest.raises(InputError, match=r"baseline is 0 m .*has no baseline term"):
+        open_dataset(_kitti(tmp_path / "zero", 0.0))
+    assert open_dataset(_kitti(tmp_path / "ok", -12.0)).calib.baseline == pytest.approx(0.1)
+    # near misses said only "no loader recognises this path"
+    (tmp_path / "ok" / "calib.txt").unlink()
+    with pytest.raises(InputError, match="KITTI image folders but no calib.txt"):
+        open_dataset(tmp_path / "ok")
+    (tmp_path / "e" / "mav0" / "cam0").mkdir(parents=True)
+    with pytest.raises(InputError, match=r"mav0/ \(EuRoC\) but no mav0/cam0/data.csv"):
+        open_dataset(tmp_path / "e")
+    (tmp_path / "e" / "mav0" / "cam0" / "data.csv").write_text("#timestamp,filename\n")
+    with pytest.raises(InputError, match="no mav0/cam1"):
+        open_dataset(tmp_path / "e")
+    (tmp_path / "f" / "left").mkdir(parents=True)
+    with pytest.raises(InputError, match="one camera folder but not the other"):
+        open_dataset(tmp_path / "f")
+    # numpy 2 printed "entry 2: np.float64(0.1) after np.float64(0.2)"
+    with pytest.raises(InputError, match=r"entry 2: 0.1 after 0.2\)"):
+        check_timestamps(np.array([0.0, 0.2, 0.1]), "times.txt")
+    # a corrupt PNG: OpenCV's own "[ERROR:0@0.4] global grfmt_png.cpp ..." lines came before ours
+    ds = _tiny_dataset(tmp_path / "ds")
+    (ds / "left" / "000001.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 100)
+    capfd.readouterr()
+    assert _run(["slam", ds, "--matcher", "orb", "-q", "--out", tmp_path / "r"], monkeypatch) == 2
+    err = capfd.readouterr().err
+    assert "not a readable image" in _one_error_line(err) and "grfmt_png" not in err

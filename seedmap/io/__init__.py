@@ -70,7 +70,23 @@ def open_dataset(path: str | Path, fmt: str | None = None, **kwargs) -> StereoSe
             return opener(p, **kwargs)
     if fmt is not None:
         raise InputError(f"unknown dataset format {fmt!r} (known: {', '.join(loader_names())})", p)
-    raise InputError(f"no loader recognises this path (known formats: {', '.join(loader_names())})", p)
+    raise InputError(f"no loader recognises this path{_near_miss(p)} (known formats: {', '.join(loader_names())})", p)
+
+
+def _near_miss(p: Path) -> str:
+    """What a folder that almost has a known layout lacks (``""`` when it resembles none)."""
+    if not p.is_dir():
+        return ""
+    if any((p / d).is_dir() for d in ("image_0", "image_2")) and not (p / "calib.txt").is_file():
+        return ": it has KITTI image folders but no calib.txt"
+    m = p / "mav0"
+    if m.is_dir() and not (m / "cam0" / "data.csv").is_file():
+        return ": it has mav0/ (EuRoC) but no mav0/cam0/data.csv"
+    if m.is_dir() and not (m / "cam1").is_dir():
+        return ": it has mav0/cam0 (EuRoC) but no mav0/cam1 (a stereo pair is needed)"
+    if (p / "left").is_dir() != (p / "right").is_dir() or (p / "cam0").is_dir() != (p / "cam1").is_dir():
+        return ": it has one camera folder but not the other (left/ + right/ or cam0/ + cam1/)"
+    return ""
 
 
 def _is_seedmap(p: Path) -> bool:

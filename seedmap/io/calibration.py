@@ -191,9 +191,12 @@ def _calib_from_P(P1: np.ndarray, P2: np.ndarray, size: tuple[int, int], src: Pa
         raise InputError("rectified projection P2 has a vertical baseline (P2[1,3] != 0): not a horizontal rig", src)
     baseline = (P1[0, 3] - P2[0, 3]) / fx
     if not np.isfinite(baseline) or baseline <= 0:
+        # "P2" is OpenCV's name of the right camera's projection; in a KITTI calib.txt it is P3 (or P1)
+        cause = ("the right camera's projection has no baseline term: it must hold -fx*baseline in its [0,3]"
+                 if baseline == 0 else "the cameras are swapped (exchange left/right) or the baseline sign is wrong")
         raise InputError(
-            f"rectified baseline is {baseline:.6g} m (P2[0,3] = {P2[0, 3]:.6g}; must be -fx*baseline < 0): the "
-            "cameras are swapped (exchange left/right) or the baseline sign is wrong", src)
+            f"rectified baseline is {baseline:.6g} m (right camera's projection P[0,3] - left's = "
+            f"{P2[0, 3] - P1[0, 3]:.6g}; must be -fx*baseline < 0): {cause}", src)
     try:
         return StereoCalib(fx=float(fx), fy=float(P1[1, 1]), cx=float(P1[0, 2]), cy=float(P1[1, 2]),
                            baseline=float(baseline), width=int(size[0]), height=int(size[1]))

@@ -11,6 +11,7 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.calibration import RectifyMaps, StereoRig, check_image_size, rectify
+from seedmap.io.images import imdecode_quiet
 from seedmap.records import StereoCalib, StereoFrame
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
@@ -63,7 +64,7 @@ def decode_image_bytes(data: bytes | np.ndarray, where: str | Path) -> tuple[np.
     buf = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data.reshape(-1)
     if buf.size == 0:
         raise InputError("image is empty (0 bytes)", where)
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    img = imdecode_quiet(buf)
     if img is None or img.size == 0:
         raise InputError("not a readable image (corrupt or unknown format); re-export or remove it", where)
     if img.dtype != np.uint8:
@@ -102,8 +103,8 @@ def check_timestamps(ts: np.ndarray, where: str | Path) -> np.ndarray:
         bad = np.flatnonzero(np.diff(ts) <= 0)
         if len(bad):
             k = int(bad[0])
-            raise InputError(f"timestamps are not strictly increasing (entry {k + 1}: {ts[k + 1]!r} after "
-                             f"{ts[k]!r}); sort the frames or fix the clock", where)
+            raise InputError(f"timestamps are not strictly increasing (entry {k + 1}: {float(ts[k + 1])!r} after "
+                             f"{float(ts[k])!r}); sort the frames or fix the clock", where)
     return ts
 
 

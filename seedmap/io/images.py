@@ -11,6 +11,16 @@ from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_write_bytes
 
 
+def imdecode_quiet(buf: np.ndarray, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray | None:
+    """``cv2.imdecode`` without OpenCV's own log lines on a corrupt file (libpng's "[ERROR:0@0.4] global
+    grfmt_png.cpp ... IHDR chunk shall be first"): the caller raises one clear error instead."""
+    level = cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        return cv2.imdecode(buf, flags)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+
+
 def read_rgb(path: str | Path) -> np.ndarray:
     """Read an 8-bit colour image as ``H x W x 3`` RGB; refuse grayscale, 16-bit and empty files."""
     path = Path(path)
@@ -19,7 +29,7 @@ def read_rgb(path: str | Path) -> np.ndarray:
     data = np.fromfile(path, dtype=np.uint8)
     if data.size == 0:
         raise InputError("image file is empty", path)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    img = imdecode_quiet(data)
     if img is None:
         raise InputError("not a readable image (corrupt or unknown format)", path)
     if img.dtype != np.uint8:
