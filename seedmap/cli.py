@@ -160,6 +160,8 @@ def eval_detect_cmd(
 
     if matching not in ("greedy", "hungarian"):
         raise SeedmapError(f"--matching must be greedy or hungarian, got {matching!r}")
+    if not 0.0 < iou <= 1.0:  # --iou 2 scored every detection a miss, exit 0
+        raise SeedmapError(f"--iou must be in (0, 1], got {iou:g}")
     m, path = run_eval_detect(dataset, detections, out, iou, matching, min_gt_area)
 
     def _f(x: Optional[float], nd: int = 3) -> str:
@@ -694,6 +696,8 @@ def count_cmd(
     base_cfg = results / "config.yaml"
     if config is None and not base_cfg.is_file():
         raise InputError("config.yaml not found (is this a `seedmap reconstruct` results folder?)", base_cfg)
+    if config is None and (results / "trajectory.tum").is_file() and not (results / "cloud.ply").is_file():
+        raise InputError("a `seedmap slam` result folder; count needs a `seedmap reconstruct` one", results)
     cfg = load_config(ReconConfig, config if config is not None else base_cfg, list(set_ or []))
     c = recount(results, cfg)
     t = Table(title=f"seed count: {results}")

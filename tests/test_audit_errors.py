@@ -259,3 +259,32 @@ def test_real_layout_messages(tmp_path, monkeypatch, capfd):
     assert _run(["slam", ds, "--matcher", "orb", "-q", "--out", tmp_path / "r"], monkeypatch) == 2
     err = capfd.readouterr().err
     assert "not a readable image" in _one_error_line(err) and "grfmt_png" not in err
+
+
+# ---- evaluation commands given the wrong pair of folders ---------------------------------------------------------
+
+def test_eval_and_count_refuse_mismatched_folders(tmp_path, monkeypatch, capsys):
+    from seedmap.io.seedmap_dataset import DatasetWriter
+    from seedmap.io.trajectory import write_tum
+    from seedmap.records import Trajectory
+
+    ds = _tiny_dataset(tmp_path / "ds", n=3)
+    poses = np.tile(np.eye(4), (3, 1, 1))
+    poses[:, 0, 3] = [0.0, 0.04, 0.08]
+    DatasetWriter(ds).write_gt_poses(Trajectory(np.arange(3) * 0.2, poses))
+    res = tmp_path / "res"
+    res.mkdir()
+    # a result of another recording (times 100 s on): `seedmap eval slam` paired poses by nearest time, exit 0
+    write_tum(res / "trajectory.tum", Trajectory(100.0 + np.arange(3) * 0.2, poses))
+    assert _run(["eval", "slam", res, ds], monkeypatch) == 2
+    assert "3 of the 3 poses" in _one_error_line(capsys.readouterr().err)
+    write_tum(res / "trajectory.tum", Trajectory(np.arange(3) * 0.2, poses))  # the right dataset still evaluates
+    assert _run(["eval", "slam", res, ds], monkeypatch) == 0
+    capsys.readouterr()
+    # `seedmap count` on a SLAM result said "config.yaml: unknown config key 'gates'"
+    (res / "config.yaml").write_text("seed: 0\ngates:\n  travel_sign: -1\n")
+    assert _run(["count", res], monkeypatch) == 2
+    assert "`seedmap slam` result folder" in _one_error_line(capsys.readouterr().err)
+    # --iou 2 scored every detection a miss, exit 0
+    assert _run(["eval", "detect", ds, res, "--iou", "2"], monkeypatch) == 2
+    assert "--iou" in _one_error_line(capsys.readouterr().err)

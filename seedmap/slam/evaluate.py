@@ -6,6 +6,8 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+
 from seedmap.errors import InputError
 from seedmap.eval.slam_metrics import SlamMetrics, compute_slam_metrics
 
@@ -32,6 +34,15 @@ def evaluate_result_dir(result: str | Path, dataset: str | Path, json_out: Path 
     gt = ds.gt_trajectory()
     if gt is None:
         raise InputError("dataset has no ground-truth trajectory (gt/poses_tum.txt)", dataset)
+    if len(est) and len(ds):  # a result of another dataset paired poses by nearest time and "evaluated" fine
+        t = np.asarray(ds.timestamps, float)
+        j = np.clip(np.searchsorted(t, est.timestamps), 1, len(t) - 1) if len(t) > 1 else np.zeros(len(est), int)
+        off = np.minimum(np.abs(t[j] - est.timestamps), np.abs(t[j - 1] - est.timestamps)) if len(t) > 1 \
+            else np.abs(t[0] - est.timestamps)
+        bad = int(np.sum(off > 1e-3))  # trajectory.tum keeps microseconds
+        if bad:
+            raise InputError(f"{bad} of the {len(est)} poses in {result / 'trajectory.tum'} are at no frame time of "
+                             "this dataset: is this the dataset the result was computed on?", dataset)
     online = read_tum(result / "trajectory_online.tum") if (result / "trajectory_online.tum").is_file() else None
     m = compute_slam_metrics(
         est, gt, frames=int(old.get("frames", len(ds))), lost_frame=old.get("lost_frame"),
