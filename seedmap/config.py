@@ -84,11 +84,26 @@ def load_config(
     try:
         return cls.model_validate(data)
     except ValidationError as e:
-        err = e.errors()[0]
-        where = ".".join(str(x) for x in err["loc"])
+        errs = e.errors()
+        err = errs[0]
+        loc = _field_loc(err["loc"])
+        where = ".".join(str(x) for x in loc)
         if err["type"] == "extra_forbidden":
-            raise ConfigError(f"unknown config key {where!r}{_key_hint(cls, err['loc'])}", path) from None
-        raise ConfigError(f"invalid config value {where!r}: {err['msg']}", path) from None
+            raise ConfigError(f"unknown config key {where!r}{_key_hint(cls, loc)}", path) from None
+        # a union (e.g. exposure: 'auto' | float) fails once per member: say what each would accept
+        msgs = list(dict.fromkeys(x["msg"] for x in errs if _field_loc(x["loc"]) == loc))
+        got = repr(err.get("input"))
+        got = f" (got {got})" if len(got) <= 40 and len(msgs) > 1 else ""
+        raise ConfigError(f"invalid config value {where!r}{got}: {' or '.join(msgs)}", path) from None
+
+
+#: pydantic's names of union members in an error location (``('exposure', "literal['auto']")``)
+_UNION_TAGS = {"float", "int", "str", "bool", "none", "list", "dict", "tuple", "set", "bytes", "path"}
+
+
+def _field_loc(loc: tuple) -> tuple:
+    """The config key path of a pydantic error location, without union-member tags."""
+    return tuple(x for x in loc if not (isinstance(x, str) and (x in _UNION_TAGS or "[" in x)))
 
 
 def _key_hint(cls: type[BaseModel], loc: tuple) -> str:

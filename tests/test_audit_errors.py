@@ -288,3 +288,15 @@ def test_eval_and_count_refuse_mismatched_folders(tmp_path, monkeypatch, capsys)
     # --iou 2 scored every detection a miss, exit 0
     assert _run(["eval", "detect", ds, res, "--iou", "2"], monkeypatch) == 2
     assert "--iou" in _one_error_line(capsys.readouterr().err)
+
+
+def test_union_config_value_says_what_each_member_accepts():
+    # `seedmap simulate panicle --exposure abc` said: invalid config value "exposure.literal['auto']": Input should
+    # be 'auto' (the key path carried pydantic's union tag and the number alternative was not mentioned)
+    from seedmap.config import load_config
+    from seedmap.sim.panicle_scan import PanicleScanConfig
+
+    with pytest.raises(ConfigError, match=r"'exposure' \(got 'abc'\): Input should be 'auto' or .*valid number") as e:
+        load_config(PanicleScanConfig, None, ["exposure=abc"])
+    assert "literal" not in str(e.value)
+    assert load_config(PanicleScanConfig, None, ["exposure=0.5"]).exposure == 0.5
