@@ -221,6 +221,10 @@ oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stay
   moved by occlusion), another 1.5-3 % over the cost cap (the paper's neighbour ratio is
   ``impossible_cost`` when a neighbour set is empty in one frame only), 0.1-0.2 % in the assignment
   and ratio test, 0.4-2 % to the NCC check; the network's window holds 98.7-100 % of them.
+  Session 8 also refitted the stereo network on eight ranges (seeds 3, 11, 16-21:
+  ``weights/stereo_score_s8.json``, same cues and shape; leave-one-range-out at ``mlp_min_logit``
+  1.0: P >= 0.991, gated R >= 0.909 on every fold, on the six folds shared with the session-7 fit
+  gated R 0.923 vs 0.921 on average); opt-in with ``score_model="stereo_score_s8.json"``.
 
 The SLAM pipeline (``seedmap.slam.config.SlamAssociationConfig``) uses ``refine="field"`` and the
 constant-velocity prediction by default (``stereo_carry`` off, ``stereo_prior="none"``).
