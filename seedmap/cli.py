@@ -410,6 +410,14 @@ def demo_cmd(
     from seedmap.io.seedmap_dataset import SeedmapDataset
     from seedmap.slam.pipeline import run_slam
 
+    # the demo replaces what it writes, so never a folder that is not its own (a EuRoC folder given as --data was
+    # deleted and replaced by a simulated range; --out another folder would have been replaced by a SLAM result)
+    if data.exists() and not SeedmapDataset.is_dataset(data) and (not data.is_dir() or any(data.iterdir())):
+        raise SeedmapError(f"{data}: exists and is not a seedmap dataset; the demo simulates into a new or empty "
+                           "folder (pass another --data; `seedmap slam` runs on your own data)")
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "metrics.json").is_file())):
+        raise SeedmapError(f"{out}: exists and is not a seedmap slam result, which the demo would replace "
+                           "(pass another --out)")
     if not SeedmapDataset.is_dataset(data):
         from seedmap.config import load_config
         from seedmap.sim import simulate_range

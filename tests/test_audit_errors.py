@@ -300,3 +300,20 @@ def test_union_config_value_says_what_each_member_accepts():
         load_config(PanicleScanConfig, None, ["exposure=abc"])
     assert "literal" not in str(e.value)
     assert load_config(PanicleScanConfig, None, ["exposure=0.5"]).exposure == 0.5
+
+
+# ---- the demo never replaces a folder that is not its own --------------------------------------------------------
+
+def test_demo_refuses_to_replace_foreign_folders(tmp_path, monkeypatch, capsys):
+    # `seedmap demo --data MY_EUROC_FOLDER` deleted the folder and simulated a range in its place (overwrite=True);
+    # --out replaced any folder with a SLAM result
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "keep.txt").write_text("precious")
+    ds = _tiny_dataset(tmp_path / "ds")
+    assert _run(["demo", "--data", mine, "--out", tmp_path / "r"], monkeypatch) == 2
+    assert "not a seedmap dataset" in _one_error_line(capsys.readouterr().err)
+    assert _run(["demo", "--data", ds, "--out", mine], monkeypatch) == 2
+    assert "not a seedmap slam result" in _one_error_line(capsys.readouterr().err)
+    assert (mine / "keep.txt").read_text() == "precious" and sorted(p.name for p in mine.iterdir()) == ["keep.txt"]
+    assert not (tmp_path / "r").exists()
