@@ -317,3 +317,24 @@ def test_demo_refuses_to_replace_foreign_folders(tmp_path, monkeypatch, capsys):
     assert "not a seedmap slam result" in _one_error_line(capsys.readouterr().err)
     assert (mine / "keep.txt").read_text() == "precious" and sorted(p.name for p in mine.iterdir()) == ["keep.txt"]
     assert not (tmp_path / "r").exists()
+
+
+def test_overwrite_never_replaces_recorded_data(tmp_path, monkeypatch, capsys):
+    # `seedmap detect DATA --out DATA --overwrite` deleted the dataset and left the detections in its place
+    from seedmap.io.atomic import atomic_output_dir
+
+    data = _kitti(tmp_path / "kitti", -12.0)
+    files = sorted(p.relative_to(data) for p in data.rglob("*"))
+    for args in (["detect", data, "--detector", "fast-classic"], ["slam", data, "--matcher", "orb", "-q"]):
+        assert _run([*args, "--out", data, "--overwrite"], monkeypatch) == 2
+        assert "is a kitti dataset" in _one_error_line(capsys.readouterr().err)
+    assert sorted(p.relative_to(data) for p in data.rglob("*")) == files
+    sim = _tiny_dataset(tmp_path / "sim")  # a seedmap layout without gt/config.yaml: someone's own recording
+    with pytest.raises(InputError, match="is a seedmap dataset"):
+        with atomic_output_dir(sim, overwrite=True):
+            pass
+    (sim / "gt").mkdir()
+    (sim / "gt" / "config.yaml").write_text("seed: 0\n")  # what `seedmap simulate` writes: it may re-render it
+    with atomic_output_dir(sim, overwrite=True) as tmp:
+        (tmp / "x.txt").write_text("x")
+    assert [p.name for p in sim.iterdir()] == ["x.txt"]

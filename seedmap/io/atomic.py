@@ -55,6 +55,22 @@ def check_output_parent(out: Path) -> None:
         raise InputError("output path exists and is not a folder", out)
 
 
+def refuse_replacing_data(out: Path) -> None:
+    """``--overwrite`` replaces result folders and simulated datasets, never recorded data.
+
+    ``seedmap detect DATA --out DATA --overwrite`` (or slam, reconstruct) deleted the user's dataset and put
+    the results in its place. A folder any loader recognises is refused, except a simulated seedmap dataset
+    (``gt/config.yaml``), which ``seedmap simulate ... --overwrite`` re-renders.
+    """
+    from seedmap.io import detect_format
+
+    fmt = detect_format(out)
+    if fmt is None or (fmt == "seedmap" and (out / "gt" / "config.yaml").is_file()):
+        return
+    raise InputError(f"is a {fmt} dataset: --overwrite replaces result folders and simulated datasets, never "
+                     "recorded data (pick another --out)", out)
+
+
 @contextlib.contextmanager
 def atomic_output_dir(out: Path, overwrite: bool = False) -> Iterator[Path]:
     """Yield a temporary sibling folder; on success it replaces ``out`` in one rename.
@@ -64,8 +80,10 @@ def atomic_output_dir(out: Path, overwrite: bool = False) -> Iterator[Path]:
     """
     out = Path(out)
     check_output_parent(out)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise InputError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise InputError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+        refuse_replacing_data(out)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
