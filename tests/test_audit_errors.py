@@ -329,6 +329,10 @@ def test_overwrite_never_replaces_recorded_data(tmp_path, monkeypatch, capsys):
         assert _run([*args, "--out", data, "--overwrite"], monkeypatch) == 2
         assert "is a kitti dataset" in _one_error_line(capsys.readouterr().err)
     assert sorted(p.relative_to(data) for p in data.rglob("*")) == files
+    # `--out PARENT --overwrite` with the input inside PARENT
+    assert _run(["slam", data, "--matcher", "orb", "-q", "--out", tmp_path, "--overwrite"], monkeypatch) == 2
+    assert "holds a kitti dataset (kitti)" in _one_error_line(capsys.readouterr().err)
+    assert sorted(p.relative_to(data) for p in data.rglob("*")) == files
     sim = _tiny_dataset(tmp_path / "sim")  # a seedmap layout without gt/config.yaml: someone's own recording
     with pytest.raises(InputError, match="is a seedmap dataset"):
         with atomic_output_dir(sim, overwrite=True):

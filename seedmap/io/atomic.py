@@ -64,11 +64,21 @@ def refuse_replacing_data(out: Path) -> None:
     """
     from seedmap.io import detect_format
 
-    fmt = detect_format(out)
-    if fmt is None or (fmt == "seedmap" and (out / "gt" / "config.yaml").is_file()):
-        return
-    raise InputError(f"is a {fmt} dataset: --overwrite replaces result folders and simulated datasets, never "
-                     "recorded data (pick another --out)", out)
+    def recorded(p: Path) -> str | None:
+        fmt = detect_format(p)
+        return None if fmt == "seedmap" and (p / "gt" / "config.yaml").is_file() else fmt
+
+    fmt = recorded(out)
+    if fmt is not None:
+        raise InputError(f"is a {fmt} dataset: --overwrite replaces result folders and simulated datasets, never "
+                         "recorded data (pick another --out)", out)
+    if (out / "config.yaml").is_file() or detect_format(out) is not None:
+        return  # a seedmap result folder (they all hold config.yaml) or a simulated dataset
+    for child in sorted(out.iterdir())[:1000]:  # `--out ~/data --overwrite` with the input inside ~/data
+        fmt = recorded(child)
+        if fmt is not None:
+            raise InputError(f"holds a {fmt} dataset ({child.name}) that --overwrite would delete (pick another "
+                             "--out)", out)
 
 
 @contextlib.contextmanager
