@@ -220,7 +220,8 @@ def _kitti(root: Path, p3_tx: float) -> Path:
         for p in sorted((ds / cam).glob("*.png")):
             cv2.imwrite(str(root / kd / p.name), cv2.imread(str(p)))
     P = "120 0 80 {} 0 120 60 0 0 0 1 0"
-    (root / "calib.txt").write_text("".join(f"P{k}: {P.format(t)}\n" for k, t in ((0, 0), (1, p3_tx), (2, 0), (3, p3_tx))))
+    rows = ((0, 0), (1, p3_tx), (2, 0), (3, p3_tx))
+    (root / "calib.txt").write_text("".join(f"P{k}: {P.format(t)}\n" for k, t in rows))
     (root / "times.txt").write_text("0.0\n0.1\n")
     return root
 
@@ -342,3 +343,28 @@ def test_overwrite_never_replaces_recorded_data(tmp_path, monkeypatch, capsys):
     with atomic_output_dir(sim, overwrite=True) as tmp:
         (tmp / "x.txt").write_text("x")
     assert [p.name for p in sim.iterdir()] == ["x.txt"]
+
+
+@pytest.mark.skipif(not EUROC.is_dir(), reason="needs ../shared/realdata")
+def test_millimetre_baseline_warned_for_euroc_too(tmp_path):
+    # the "is the calibration in millimetres?" warning came from load_rig only: EuRoC sensor.yaml pairs and bag
+    # CameraInfo with a 49.6 m baseline ran silently
+    import shutil
+
+    from seedmap.io import open_dataset
+
+    src, dst = EUROC / "mav0", tmp_path / "mav0"
+    for cam in ("cam0", "cam1"):
+        (dst / cam / "data").mkdir(parents=True)
+        rows = (src / cam / "data.csv").read_text().splitlines()[:3]  # header + 2 images
+        (dst / cam / "data.csv").write_text("\n".join(rows) + "\n")
+        for r in rows[1:]:
+            shutil.copy(src / cam / "data" / r.split(",")[1].strip(), dst / cam / "data")
+        text = (src / cam / "sensor.yaml").read_text()
+        if cam == "cam1":  # the right camera's translation in millimetres
+            text = text.replace("-0.0198435579556", "-19.8435579556").replace("0.0453689425024", "45.3689425024")
+        (dst / cam / "sensor.yaml").write_text(text)
+    assert not any("millimetres" in w for w in open_dataset(EUROC).warnings)
+    seq = open_dataset(tmp_path)
+    assert seq.rig.baseline > 40
+    assert any("baseline is 49.57 m - is the calibration in millimetres" in w for w in seq.warnings)

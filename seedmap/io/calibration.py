@@ -723,10 +723,15 @@ def load_rig(path: str | Path, right: str | Path | None = None,
     Oddities that are not errors (a baseline that looks like millimetres) land in ``rig.warnings``.
     """
     rig = _load_rig(path, right, image_size, kitti_cams)
-    if rig.baseline > 2.0:
-        rig.warnings.append(f"{path}: stereo baseline is {rig.baseline:.4g} m - is the calibration in millimetres? "
-                            "seedmap works in metres")
+    warn_implausible_baseline(rig, path)
     return rig
+
+
+def warn_implausible_baseline(rig: StereoRig, where: str | Path) -> None:
+    """A baseline over 2 m is almost always a calibration in millimetres: say so in ``rig.warnings``."""
+    if rig.baseline > 2.0:
+        rig.warnings.append(f"{where}: stereo baseline is {rig.baseline:.4g} m - is the calibration in millimetres? "
+                            "seedmap works in metres")
 
 
 def _load_rig(path: str | Path, right: str | Path | None, image_size: tuple[int, int] | None,

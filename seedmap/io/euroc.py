@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.errors import InputError
-from seedmap.io.calibration import parse_euroc_pair, read_yaml_any, rectified_rotation
+from seedmap.io.calibration import (parse_euroc_pair, read_yaml_any, rectified_rotation,
+                                    warn_implausible_baseline)
 from seedmap.io.common import LoaderWarnings, RectifiedPairs, check_timestamps
 from seedmap.io.sync import match_stamps
 from seedmap.records import Trajectory
@@ -87,6 +88,7 @@ class EurocSequence(RectifiedPairs):
         self.timestamps = self.stamps_ns.astype(np.float64) * 1e-9
         lp, rp = c0 / "sensor.yaml", c1 / "sensor.yaml"
         rig, self.T_body_cam0 = parse_euroc_pair(read_yaml_any(lp), read_yaml_any(rp), lp, rp)
+        warn_implausible_baseline(rig, f"{lp} + {rp.parent.name}/{rp.name}")
         self._setup_rectification(rig, rectify_alpha)
         self._alpha = rectify_alpha
 

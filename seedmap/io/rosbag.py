@@ -27,7 +27,7 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.calibration import StereoRig, _calib_from_P, _rig_from_rect, check_image_size, \
-    load_rig, rectify
+    load_rig, rectify, warn_implausible_baseline
 from seedmap.io.common import LoaderWarnings, decode_image_bytes, to_rgb
 from seedmap.io.sync import match_stamps
 from seedmap.records import StereoFrame, Trajectory
@@ -144,7 +144,8 @@ def guess_stereo_topics(topics: dict[str, str]) -> tuple[str, str]:
             return best[1], best[2]
     listing = ", ".join(images) if images else "none"
     raise InputError(f"cannot tell the left and right image topics apart (image topics: {listing}); "
-                     "pass --set dataset.left_topic=... --set dataset.right_topic=... (bag-info: --left-topic, --right-topic)")
+                     "pass --set dataset.left_topic=... --set dataset.right_topic=... "
+                     "(bag-info: --left-topic, --right-topic)")
 
 
 def _info_topic_for(image_topic: str, infos: list[str]) -> str | None:
@@ -297,7 +298,8 @@ class RosbagSequence:
         il, ir, dropped = match_stamps(stamps[left_topic], stamps[right_topic], sync_tol_s)
         if len(il) == 0:
             raise InputError(f"no left/right images within {sync_tol_s * 1e3:g} ms of each other "
-                             "(raise --set dataset.sync_tol_s=SECONDS, bag-info: --sync-tol; or check the topics)", self.path)
+                             "(raise --set dataset.sync_tol_s=SECONDS, bag-info: --sync-tol; or check the topics)",
+                             self.path)
         if dropped:
             self.warnings.append(f"{dropped} images without a stereo partner within {sync_tol_s * 1e3:g} ms dropped "
                                  f"({len(stamps[left_topic])} left, {len(stamps[right_topic])} right, "
@@ -313,6 +315,7 @@ class RosbagSequence:
             rig = load_rig(calib, right=right_calib, image_size=self._first_size())
         else:
             rig = self._rig_from_camera_info(info_l, info_r, info_msgs)
+            warn_implausible_baseline(rig, f"{self.path}:{info_r}")
         self.rig = rig
         self.calib, self.maps = rectify(rig, alpha=alpha)
         self.warnings.extend(rig.warnings)
@@ -323,7 +326,8 @@ class RosbagSequence:
 
     def _rig_from_camera_info(self, info_l, info_r, msgs) -> StereoRig:
         if info_l is None or info_r is None or info_l == info_r or info_l not in msgs or info_r not in msgs:
-            raise InputError("no CameraInfo for both cameras in the bag: pass a calibration file (--set dataset.calib=FILE)", self.path)
+            raise InputError("no CameraInfo for both cameras in the bag: pass a calibration file "
+                             "(--set dataset.calib=FILE)", self.path)
         K1, D1, R1, P1, s1, m1 = _camera_info_matrices(msgs[info_l])
         K2, D2, R2, P2, s2, m2 = _camera_info_matrices(msgs[info_r])
         where = Path(f"{self.path}:{info_r}")  # bag:topic (a topic is absolute: path / topic would drop the bag)
