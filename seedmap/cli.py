@@ -534,6 +534,13 @@ def _bench_print(records, out: Path) -> None:
                       "n/a" if s["ms_per_frame"] is None else f"{s['ms_per_frame']:.0f}")
         con.print(t)
     con.print(f"tables, plots and per-run results in {out} (report.md)")
+    failed = [r for r in records if r.status == "error"]
+    if failed:  # the tables showed "–" for a failed run, like a run without ground truth
+        first = failed[0].note.removeprefix("error: ")
+        msg = f"{len(failed)} of {len(records)} runs failed (first: {failed[0].range_name} {failed[0].method}: {first})"
+        if not any(r.status == "ok" for r in records):
+            raise SeedmapError(f"{msg}; details in {out / 'results.csv'}")
+        typer.secho(f"warning: {msg}; see {out / 'results.csv'}", err=True, fg=typer.colors.YELLOW)
 
 
 @benchmark_app.command("paper")

@@ -368,3 +368,15 @@ def test_millimetre_baseline_warned_for_euroc_too(tmp_path):
     seq = open_dataset(tmp_path)
     assert seq.rig.baseline > 40
     assert any("baseline is 49.57 m - is the calibration in millimetres" in w for w in seq.warnings)
+
+
+def test_benchmark_run_says_when_runs_failed(tmp_path, monkeypatch, capsys, recwarn):
+    # every run failing printed a table of "–" (like runs without GT), a matplotlib legend warning, and exit 0
+    ds = _tiny_dataset(tmp_path / "broken", n=2)
+    (ds / "left" / "000001.png").write_bytes(b"not a png")
+    code = _run(["benchmark", "run", ds, "--out", tmp_path / "b", "--methods", "orb", "--workers", "1"], monkeypatch)
+    assert code == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "1 of 1 runs failed" in line and "000001.png" in line
+    assert (tmp_path / "b" / "results.csv").is_file()  # the record of what failed is kept
+    assert not [w for w in recwarn if "legend" in str(w.message)]

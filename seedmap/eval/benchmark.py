@@ -835,7 +835,8 @@ def bar_chart_png(records: Sequence[RunRecord]) -> bytes:
         ax.set_ylim(0, 1.08)
         ax.set_ylabel("fraction mapped")
         ax.set_title(f"{sc}: maximum distance mapped / range length (dots: GT-validated)", fontsize=10)
-        ax.legend(fontsize=7, ncol=4, loc="upper left")
+        if methods:  # every run failed: no bars, and matplotlib warns about an empty legend
+            ax.legend(fontsize=7, ncol=4, loc="upper left")
     if show_pub:
         ax = axes[-1, 0]
         keys = list(PUBLISHED_MDM)
