@@ -788,6 +788,8 @@ def batch_cmd(
                   progress=not quiet)
     typer.echo(summary_markdown(s))
     typer.echo(f"summary in {out / 'summary.md'} ({s.n_ok} ok, {s.n_failed} failed)")
+    if s.n_failed and not s.n_ok:  # one failing range is recorded, not fatal; a field where none ran is
+        raise SeedmapError(f"all {s.n_failed} ranges failed (errors in {out / 'summary.md'})")
 
 
 def main() -> None:

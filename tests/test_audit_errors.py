@@ -380,3 +380,15 @@ def test_benchmark_run_says_when_runs_failed(tmp_path, monkeypatch, capsys, recw
     assert "1 of 1 runs failed" in line and "000001.png" in line
     assert (tmp_path / "b" / "results.csv").is_file()  # the record of what failed is kept
     assert not [w for w in recwarn if "legend" in str(w.message)]
+
+
+def test_batch_where_every_range_failed_exits_2(tmp_path, monkeypatch, capsys):
+    # failing ranges are recorded, not fatal - but a field where none ran exited 0
+    field = tmp_path / "field"
+    ds = _tiny_dataset(field / "r1", n=2)
+    (ds / "left" / "000001.png").write_bytes(b"not a png")
+    assert _run(["batch", field, "--out", tmp_path / "out", "--matcher", "orb", "-q"], monkeypatch) == 2
+    assert "all 1 ranges failed" in _one_error_line(capsys.readouterr().err)
+    assert (tmp_path / "out" / "summary.md").is_file()
+    _tiny_dataset(field / "r2", n=2)  # one good range: the failure is recorded, exit 0
+    assert _run(["batch", field, "--out", tmp_path / "out2", "--matcher", "orb", "-q"], monkeypatch) == 0
