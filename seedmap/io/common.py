@@ -17,6 +17,9 @@ from seedmap.records import StereoCalib, StereoFrame
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 
 
+_REPORTED: set[str] = set()
+
+
 class LoaderWarnings(list):
     """A loader's ``warnings`` list that also reports each entry on the ``seedmap.io`` logger as it is added.
 
@@ -34,7 +37,10 @@ class LoaderWarnings(list):
         import logging
 
         text = str(msg)
-        logging.getLogger("seedmap.io").warning(text if text.startswith(self.where) else f"{self.where}: {text}")
+        text = text if text.startswith(self.where) else f"{self.where}: {text}"
+        if text not in _REPORTED:  # a command that opens one dataset several times (benchmark methods) says it once
+            _REPORTED.add(text)
+            logging.getLogger("seedmap.io").warning(text)
 
     def extend(self, msgs) -> None:  # type: ignore[override]
         for m in msgs:
