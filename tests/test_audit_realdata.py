@@ -43,7 +43,8 @@ def _write_ros1_bag(path: Path, n: int) -> Path:
 
     files = sorted((mav0 / "cam0" / "data").glob("*.png"))[:n]
     with Writer(path) as w:
-        img_c = {c: w.add_connection(f"/{c}/image_raw", "sensor_msgs/msg/Image", typestore=ts) for c in ("cam0", "cam1")}
+        img_c = {c: w.add_connection(f"/{c}/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+                 for c in ("cam0", "cam1")}
         inf_c = {c: w.add_connection(f"/{c}/camera_info", "sensor_msgs/msg/CameraInfo", typestore=ts)
                  for c in ("cam0", "cam1")}
         for f in files:
