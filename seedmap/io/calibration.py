@@ -172,7 +172,8 @@ def check_image_size(calib_size: tuple[int, int], image: np.ndarray, image_path:
         src = f" ({calib_source})" if calib_source else ""
         raise InputError(
             f"image is {w}x{h} but the calibration{src} is for {calib_size[0]}x{calib_size[1]}: use the "
-            "calibration of this resolution (or scale it: StereoCalib.scaled)", image_path)
+            "calibration of this resolution, or scale fx, fy, cx, cy (and the image size) with the images",
+            image_path)
 
 
 # ----------------------------------------------------------------------------------------------
