@@ -128,6 +128,10 @@ def detect_cmd(
     from seedmap.detect.run import run_detect
 
     cfg = load_config(DetectConfig, config, set_ or [])
+    if detector == "gt":  # the oracle reads seedmap's GT layout: say so for real data (was a TypeError traceback)
+        from seedmap.io.seedmap_dataset import SeedmapDataset
+
+        SeedmapDataset(dataset)
     if weights is not None:  # only these two read --weights; the others would silently use their own
         from seedmap.detect import default_detector_name
 

@@ -126,3 +126,18 @@ def test_sift_slam_on_real_euroc_against_ground_truth(tmp_path):
     assert abs(net_est - net_gt) < 0.002  # measured 2.2 vs 1.7 mm
     rot = [np.degrees(Rotation.from_matrix(t.poses[0][:3, :3].T @ t.poses[-1][:3, :3]).magnitude()) for t in (e, g)]
     assert abs(rot[0] - rot[1]) < 0.15  # measured 0.15 vs 0.20 deg
+
+
+def test_gt_oracle_on_real_data_is_one_line(tmp_path, monkeypatch, capsys):
+    # `seedmap detect EUROC --detector gt` was a TypeError traceback (GtDetector got the opened EurocSequence)
+    import sys
+
+    from seedmap import cli
+
+    monkeypatch.setattr(sys, "argv", ["seedmap", "detect", str(EUROC), "--detector", "gt", "--out", str(tmp_path / "d")])
+    with pytest.raises(SystemExit) as e:
+        cli.main()
+    assert e.value.code == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
+    assert len(err) == 1 and "this is a euroc dataset" in err[0]
+    assert not (tmp_path / "d").exists()
