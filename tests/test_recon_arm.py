@@ -107,3 +107,23 @@ def test_bad_joint_files(tmp_path):
     p.write_text("view,t," + ",".join(f"meas_j{i}" for i in range(5)) + "\n0,0," + ",".join(["0"] * 5) + "\n")
     with pytest.raises(InputError, match="6 meas_"):
         read_joints_csv(p)
+
+
+def test_joint_angles_in_degrees_are_refused(tmp_path):
+    """A joints.csv written in degrees (a common export mistake) used to give 0 seeds and 0.3 m pose error, exit 0."""
+    cap = simulate_capture(ArmConfig(views=4), [0.1], np.random.default_rng(2))
+    write_joints_csv(tmp_path / "joints.csv", cap)
+    lines = (tmp_path / "joints.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    meas = [i for i, h in enumerate(head) if h.startswith("meas_")]
+    out = [lines[0]]
+    for ln in lines[1:]:
+        parts = ln.split(",")
+        for i in meas:
+            parts[i] = repr(float(np.degrees(float(parts[i]))))
+        out.append(",".join(parts))
+    p = tmp_path / "deg.csv"
+    p.write_text("\n".join(out) + "\n")
+    assert np.abs(cap.q_meas).max() > 0.5  # some joint far enough from 0 that degrees exceed 2 pi
+    with pytest.raises(InputError, match="radians; degrees"):
+        read_joints_csv(p)

@@ -343,6 +343,11 @@ def read_joints_csv(path) -> tuple[np.ndarray, np.ndarray]:
     q = np.asarray(rows, float)
     if not np.all(np.isfinite(q)):
         raise InputError("joint angles must be finite numbers", path)
+    big = np.abs(q) > 2.0 * np.pi + 1e-6
+    if np.any(big):
+        r, c = np.argwhere(big)[0]
+        raise InputError(f"line {r + 2}: joint {head[meas[c]]} = {q[r, c]:g} is outside the UR5 range of +-2 pi rad "
+                         "(joint angles must be radians; degrees?)", path)
     return np.asarray(views, int), q
 
 
