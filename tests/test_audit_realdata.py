@@ -141,3 +141,15 @@ def test_gt_oracle_on_real_data_is_one_line(tmp_path, monkeypatch, capsys):
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
     assert len(err) == 1 and "this is a euroc dataset" in err[0]
     assert not (tmp_path / "d").exists()
+
+
+def test_gt_oracle_on_an_opened_real_sequence_is_a_one_line_input_error():
+    """The Python API (not only the CLI) refuses real data for the oracle with an InputError naming the folder."""
+    from seedmap.detect.gt import GtDetector
+    from seedmap.errors import InputError
+    from seedmap.io import open_dataset
+
+    seq = open_dataset(EUROC)
+    with pytest.raises(InputError, match="simulated seedmap dataset with ground truth; got a EurocSequence") as e:
+        GtDetector(seq)
+    assert str(EUROC) in str(e.value) and "\n" not in str(e.value)

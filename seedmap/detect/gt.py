@@ -28,7 +28,12 @@ def _open(dataset: object) -> object:
         raise SeedmapError("the gt oracle detector needs the dataset (it reads ground-truth masks)")
     if hasattr(dataset, "gt_instances") and hasattr(dataset, "gt_label_image"):
         return dataset
-    return SeedmapDataset(Path(dataset))  # type: ignore[arg-type]
+    if not isinstance(dataset, (str, Path)):
+        # an opened sequence of another format (EuRoC, KITTI, a bag, an image folder): it has no ground truth
+        root = getattr(dataset, "root", None) or getattr(dataset, "path", None)
+        raise InputError(f"the gt oracle detector needs a simulated seedmap dataset with ground truth; got a "
+                         f"{type(dataset).__name__}", root if root is not None else "dataset")
+    return SeedmapDataset(Path(dataset))
 
 
 class GtDetector(Detector):
