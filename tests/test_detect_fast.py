@@ -80,6 +80,17 @@ def test_detect_files_and_eval_roundtrip(ds, tmp_path):
     assert li.labels.max() > 0
 
 
+def test_eval_detect_refuses_detections_of_other_sized_images(ds, tmp_path):
+    """Scoring a detections folder against a dataset of another image size is a one-line error naming the folder
+    (it used to score everything as a miss, or fail with 'frame N but the dataset has N frames')."""
+    other = write_synthetic_dataset(tmp_path / "big", n_frames=2, width=400, height=300)
+    out = run_detect(other, tmp_path / "det_big", "gt", progress=False)
+    with pytest.raises(InputError, match="made on 400x300 images but the dataset's are 320x240") as e:
+        run_eval_detect(ds.root, out, progress=False)
+    assert str(out) in str(e.value)
+    assert not (out / "detect_metrics.json").exists()
+
+
 def test_rle_and_polygons():
     rng = np.random.default_rng(0)
     m = (rng.random((7, 9)) > 0.6).astype(np.uint8)

@@ -74,6 +74,22 @@ def read_detections(path: str | Path) -> dict[tuple[int, str], Detections]:
     return out
 
 
+def detection_image_sizes(path: str | Path) -> set[tuple[int, int]]:
+    """The ``(width, height)`` pairs the records of a detections folder (or its ``detections.jsonl``) were made on;
+    records without a size (0) are left out. Used to refuse scoring detections against another dataset."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / JSONL_NAME
+    sizes: set[tuple[int, int]] = set()
+    for line in p.read_text().splitlines():
+        if line.strip():
+            rec = json.loads(line)
+            w, h = int(rec.get("width", 0) or 0), int(rec.get("height", 0) or 0)
+            if w > 0 and h > 0:
+                sizes.add((w, h))
+    return sizes
+
+
 def coco_from_records(records: Iterable[dict]) -> dict:
     """A COCO dataset dict holding the detections of ``records`` (see module docstring)."""
     images, anns = [], []

@@ -11,7 +11,7 @@ import numpy as np
 from seedmap.detect.base import make_detector
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses
-from seedmap.detect.io import detection_record, read_detections, write_detection_files
+from seedmap.detect.io import detection_image_sizes, detection_record, read_detections, write_detection_files
 from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_output_dir, atomic_write_text
 from seedmap.io.images import write_png
@@ -81,6 +81,11 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
     if missing:
         raise InputError(f"detections refer to frame {missing[0][0]} but the dataset has {len(ds)} frames",
                          detections_dir)
+    other = detection_image_sizes(detections_dir) - {(int(ds.calib.width), int(ds.calib.height))}
+    if other:
+        w, h = sorted(other)[0]
+        raise InputError(f"detections were made on {w}x{h} images but the dataset's are "
+                         f"{ds.calib.width}x{ds.calib.height} (detections of another dataset?)", detections_dir)
     if min_gt_area is None:
         min_gt_area = min_visible_seed_px(ds.calib.width)
     m = evaluate_detections(ds, dets, iou_threshold, matching, min_gt_area, progress)  # type: ignore[arg-type]
