@@ -168,3 +168,4 @@ def test_training_can_start_from_shipped_weights(small, tmp_path):
     with pytest.raises(InputError):
         train_cnn([small.root], tmp_path / "o2", None,
                   CnnTrainConfig(steps=1, init_weights=str(tmp_path / "none.onnx")), progress=False)
+    assert not (tmp_path / "o2").exists()  # a bad --init leaves no empty output folder behind

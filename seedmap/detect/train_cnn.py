@@ -593,7 +593,6 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
 
     cfg = cfg or CnnTrainConfig()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(max(1, int(cfg.threads)))
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
@@ -642,6 +641,8 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         if missing:
             raise InputError(f"lacks parameters {', '.join(missing[:3])}", cfg.init_weights)
         net.load_state_dict({k: torch.from_numpy(init[k]) for k in sd})
+    # created only once the inputs and --init weights have been read: a bad input leaves no empty folder behind
+    out.mkdir(parents=True, exist_ok=True)
     opt = torch.optim.Adam(net.parameters(), cfg.lr)
     step, history = 0, []
     if resume:
