@@ -84,3 +84,21 @@ def test_metrics_pair_poses_by_time_when_gt_starts_late():
     assert m_full.ate_rmse_m < 1e-9
     assert m_late.ate_rmse_m < 1e-9  # index pairing would give a 0.12 m error here
     assert m_late.rpe_trans_rmse_m < 1e-9
+
+
+def test_topview_without_ground_truth_plots_the_ground_plane(tmp_path):
+    """Without GT the world is the first camera's optical frame: a camera moving 1 m forward (z) must draw a long
+    red track, not a dot (the plot used to show x against y = height)."""
+    import cv2
+
+    from seedmap.records import Trajectory
+    from seedmap.slam.outputs import plot_topview
+
+    n = 20
+    poses = np.repeat(np.eye(4)[None], n, axis=0)
+    poses[:, 2, 3] = np.linspace(0.0, 1.0, n)
+    plot_topview(tmp_path / "t.png", Trajectory(np.arange(n, dtype=float), poses), None, np.zeros((0, 3)), "t")
+    img = cv2.imread(str(tmp_path / "t.png"))
+    red = (img[:, :, 2] > 200) & (img[:, :, 1] < 80) & (img[:, :, 0] < 80)
+    rows = np.nonzero(red.any(axis=1))[0]
+    assert rows.max() - rows.min() > 0.4 * img.shape[0]

@@ -40,22 +40,31 @@ def write_landmarks(folder: Path, lm, clusters: np.ndarray) -> None:
 
 
 def plot_topview(path: Path, est: Trajectory, gt: Trajectory | None, lm_xyz: np.ndarray, title: str) -> None:
-    """World top view (x along the row, y towards the row): estimate vs GT and the landmarks."""
+    """Top view of the estimate (and GT) with the landmarks.
+
+    With ground truth the world is the simulator's (x along the row, y towards the row, z up): x against y.
+    Without it the world is the first camera's optical frame (x right, y down, z forward), so the ground plane is
+    x against z (plotting y there would draw a front view)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    j = 1 if gt is not None and len(gt) else 2
     fig, ax = plt.subplots(figsize=(10, 4), dpi=110)
     if len(lm_xyz):
-        ax.scatter(lm_xyz[:, 0], lm_xyz[:, 1], s=0.5, c="tab:green", alpha=0.5, label="seed landmarks")
+        ax.scatter(lm_xyz[:, 0], lm_xyz[:, j], s=0.5, c="tab:green", alpha=0.5, label="seed landmarks")
     if gt is not None and len(gt):
         ax.plot(gt.positions[:, 0], gt.positions[:, 1], "k--", lw=1.2, label="ground truth")
     if len(est):
-        ax.plot(est.positions[:, 0], est.positions[:, 1], "r-", lw=1.5, label="estimate")
-        ax.plot(est.positions[-1, 0], est.positions[-1, 1], "rx", ms=8)
-    ax.set_xlabel("x along the row (m)")
-    ax.set_ylabel("y towards the row (m)")
+        ax.plot(est.positions[:, 0], est.positions[:, j], "r-", lw=1.5, label="estimate")
+        ax.plot(est.positions[-1, 0], est.positions[-1, j], "rx", ms=8)
+    if j == 1:
+        ax.set_xlabel("x along the row (m)")
+        ax.set_ylabel("y towards the row (m)")
+    else:
+        ax.set_xlabel("x, first camera's right (m)")
+        ax.set_ylabel("z, first camera's forward (m)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_title(title, fontsize=9)
     if ax.get_legend_handles_labels()[0]:  # nothing plotted (no frame, no GT): no empty legend
