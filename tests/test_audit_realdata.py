@@ -112,6 +112,7 @@ def test_sift_slam_on_real_euroc_against_ground_truth(tmp_path):
 
     default = run_slam(EUROC, tmp_path / "default", matcher="sift", config=load_config(SlamConfig), progress=False)
     assert default.metrics.lost_frame == 1  # the row-travel gates: documented limitation, see NO_TRAVEL_GATE
+    assert "gates.travel_sign=0 and gates.temporal_min_shift_px=0" in default.metrics.lost_reason  # says what to do
     res = run_slam(EUROC, tmp_path / "r", matcher="sift", config=load_config(SlamConfig, None, NO_TRAVEL_GATE),
                    progress=False)
     m = res.metrics

@@ -243,8 +243,15 @@ class SemanticSlam:
             n_inl = 0 if est is None else int(est.inliers.sum())
             res.n_inliers = n_inl
             if n_inl < self.cfg.lost.min_inliers:
+                g = self.cfg.gates
+                hint = ""
+                if len(tmatch) < self.cfg.lost.min_inliers and (g.travel_sign != 0 or g.temporal_min_shift_px > 0):
+                    # the default temporal gates assume a robot driving along a row (one image-u direction, at
+                    # least a minimum shift); a hovering or differently moving camera fails them all
+                    hint = ("; the temporal gates expect row travel: for other motion set gates.travel_sign=0 "
+                            "and gates.temporal_min_shift_px=0")
                 return self._declare_lost(f, f"too few verified 3D matches ({n_inl} < "
-                                             f"{self.cfg.lost.min_inliers}; {len(tmatch)} temporal matches)", res)
+                                             f"{self.cfg.lost.min_inliers}; {len(tmatch)} temporal matches{hint})", res)
             T_prev = self.online_poses[-1]
             T = T_prev @ est.T_prev_cur
             kp = self.frames[-1]
