@@ -45,6 +45,13 @@ tracks within 0.6 median diameters instead of 0.4, chosen on the tuning panicles
 (tags ``s7btune`` ... ``s7bfresh4``) with the new profile; ``..._{gt,fast}_s7b_fresh5.json`` = the panicles
 170-179 rendered after that freeze and run once (``--eval 100 170 ... 179 --detectors gt fast --modes seeds
 --data-dir data/recon_s7 --tag s7bfresh5``).
+Session 8 (issue #6; the ``fast`` profile adds the row-residual weighting of the stereo assignment and the second
+linking pass, ``mv_row_sigma_px=1.5 mv_relink_px=10 mv_relink_min_support=1.5``, chosen on the tuning panicles
+only): ``..._fast_s8_{tuning,heldout,heldout2,fresh3,fresh4,fresh5}.json`` = ``--recount`` of copies of the session-7b
+folders (tags ``s8tune`` ... ``s8fresh5``); ``..._{gt,fast}_s8_fresh6.json`` = the panicles 180-189 rendered after
+that freeze and run once (``--eval 100 180 ... 189 --detectors gt fast --modes seeds --data-dir data/recon_s7 --tag
+s8fresh6``). ``..._fast_s8_ft1_tuning.json``: the arm network fine-tuned with ``--peak-box-radius 1`` (not adopted),
+``--detector-set cnn.weights=data/cnn_s8/ft_pbr1/fast_cnn.onnx --tag s8ft1`` under the session-7b profile.
 """
 
 from __future__ import annotations
