@@ -50,7 +50,8 @@ linking pass, ``mv_row_sigma_px=1.5 mv_relink_px=10 mv_relink_min_support=1.5``,
 only): ``..._fast_s8_{tuning,heldout,heldout2,fresh3,fresh4,fresh5}.json`` = ``--recount`` of copies of the session-7b
 folders (tags ``s8tune`` ... ``s8fresh5``); ``..._{gt,fast}_s8_fresh6.json`` = the panicles 180-189 rendered after
 that freeze and run once (``--eval 100 180 ... 189 --detectors gt fast --modes seeds --data-dir data/recon_s7 --tag
-s8fresh6``). ``..._fast_s8_ft1_tuning.json``: the arm network fine-tuned with ``--peak-box-radius 1`` (not adopted),
+s8fresh6``); ``..._fast_s7b_fresh6.json`` = the session-7b profile on them for comparison (``--recount --tag
+s7bfresh6 --count-set detector_profile=false`` plus that profile's eight keys). ``..._fast_s8_ft1_tuning.json``: the arm network fine-tuned with ``--peak-box-radius 1`` (not adopted),
 ``--detector-set cnn.weights=data/cnn_s8/ft_pbr1/fast_cnn.onnx --tag s8ft1`` under the session-7b profile.
 """
 
