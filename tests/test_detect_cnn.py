@@ -52,8 +52,9 @@ def test_shipped_cnn_finds_most_seeds(small):
     assert (d.boxes[:, 2] > d.boxes[:, 0]).all() and (d.boxes[:, 3] > d.boxes[:, 1]).all()
     assert d.boxes[:, 2].max() <= img.shape[1] and d.boxes[:, 3].max() <= img.shape[0]
     assert d.scores.min() >= det.threshold - 1e-6 and d.scores.max() <= 1.0
-    # cnn.threshold=None: each shipped network's own threshold (field 0.45, arm 0.45)
-    assert det.cfg.threshold is None and det.threshold == 0.45
+    # one default threshold for both shipped networks (0.45); `null` in a config reads as it
+    assert det.cfg.threshold == 0.45 and det.threshold == 0.45
+    assert CnnConfig(threshold=None).threshold == 0.45  # session-7 configs wrote `threshold: null`
     assert make_detector("fast-cnn", overrides=["cnn.domain=arm"]).threshold == 0.45
     assert make_detector("fast-cnn", overrides=["cnn.threshold=0.3"]).threshold == 0.3
     # the gated tiles give the same seeds as one whole-image pass (up to the gate's few misses)

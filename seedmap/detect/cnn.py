@@ -52,7 +52,7 @@ import cv2
 import numpy as np
 
 from seedmap.detect.base import Detector, check_image, map_to_input
-from seedmap.detect.config import CNN_DEFAULT_THRESHOLD, CnnConfig, FastConfig
+from seedmap.detect.config import CnnConfig, FastConfig
 from seedmap.errors import ConfigError, InputError
 from seedmap.records import Detections, StereoDetections, StereoFrame
 
@@ -186,9 +186,8 @@ class CnnDetector(Detector):
         if self.cfg.tile and (self.cfg.tile % 2 or self.cfg.margin % 2):
             raise ConfigError(f"cnn.tile ({self.cfg.tile}) and cnn.margin ({self.cfg.margin}) must be even "
                               "(the network halves the resolution)")
-        #: the peak threshold in use (cnn.threshold, or the shipped default of cnn.domain)
-        self.threshold = float(self.cfg.threshold if self.cfg.threshold is not None
-                               else CNN_DEFAULT_THRESHOLD[self.cfg.domain])
+        #: the peak threshold in use (cnn.threshold)
+        self.threshold = float(self.cfg.threshold)
         self.path = cnn_weights_path(self.cfg, weights)
         self.sess = load_session(self.path, self.cfg.threads)
         meta = self.sess.get_modelmeta().custom_metadata_map

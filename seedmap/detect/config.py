@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal, Sequence
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from seedmap.io.options import DatasetOptions
 from seedmap.config import ConfigModel, apply_overrides
@@ -85,12 +85,13 @@ class FastConfig(ConfigModel):
     use_cnn: bool = True
 
 
-#: the ``cnn.threshold`` that ``None`` means, per ``cnn.domain`` (field: the session-4 weights' 0.45, chosen on
-#: det_s36; arm: the session-6 default). Session 7 fine-tuned the field network and chose 0.50 on validation (F1
-#: 0.902 / 0.884 on det_s36 / det_s45), but at 0.50 `seedmap slam --detector fast` lost track on two of the eight
-#: hard scenes (paper2-hard at frame 63, paper6-hard at frame 11), which the session-4 weights at 0.45 map in
-#: full, so the session-4 network and 0.45 stay the default (see seedmap.detect.train_cnn, run C).
-CNN_DEFAULT_THRESHOLD = {"field": 0.45, "arm": 0.45}
+#: The CNN's peak threshold (both shipped networks). Field network: chosen on det_s36 (session 4, F1 0.898). Session 7
+#: fine-tuned it and chose 0.50 on validation (F1 0.902 / 0.884 on det_s36 / det_s45), but at 0.50 `seedmap slam
+#: --detector fast` lost track on two of the eight hard scenes (paper2-hard at frame 63, paper6-hard at frame 11),
+#: which the session-4 weights at 0.45 map in full, so the session-4 network and 0.45 stayed (see
+#: seedmap.detect.train_cnn, run C). Session 7 briefly let ``None`` mean a per-domain value; both were 0.45, so
+#: since session 8 the default is the plain number and ``None`` (in configs written then) reads as it.
+CNN_THRESHOLD = 0.45
 
 
 class CnnConfig(ConfigModel):
@@ -108,9 +109,16 @@ class CnnConfig(ConfigModel):
     #: simulated row ranges), ``arm`` = fast_cnn_arm.onnx (trained on ranges + close-up arm scans of panicles,
     #: whose seeds are ~2x larger; retrained on auto-exposed scans in session 7; the panicle reconstruction sets it)
     domain: Literal["field", "arm"] = "field"
-    #: keep heatmap peaks with seed probability at least this; None = the shipped network's own threshold, chosen
-    #: on validation (CNN_DEFAULT_THRESHOLD: field 0.45, session 4, det_s36 F1 0.898; arm 0.45)
-    threshold: float | None = None
+    #: keep heatmap peaks with seed probability at least this (CNN_THRESHOLD: session 4, det_s36 F1 0.898; the
+    #: panicle reconstruction runs the arm network at 0.40, ReconConfig.detector_overrides)
+    threshold: float = CNN_THRESHOLD
+
+    @field_validator("threshold", mode="before")
+    @classmethod
+    def _null_threshold_is_the_default(cls, v: object) -> object:
+        # configs written in session 7 say ``threshold: null`` (it meant 0.45 for both networks)
+        return CNN_THRESHOLD if v is None else v
+
     #: tile side (px) at the input resolution; 0 = whole image in one pass
     tile: int = 48
     #: context added around every tile (px). The receptive-field radius is 9 px (+1 for the 3x3
