@@ -143,18 +143,25 @@ def score(frames: list[dict], model: ScoreModel, min_logit: float, margin: float
     return {"precision": correct / max(kept, 1), "recall_gated": correct / max(gated, 1), "wrong": kept - correct}
 
 
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def fit_arg_parser(description: str, cues: tuple[str, ...] | list[str], epochs: int, report: Path
+                   ) -> argparse.ArgumentParser:
+    """The command line of the candidate-score fit scripts (this one and ``fit_assoc_temporal.py``)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("ranges", nargs="+", type=Path, help="rendered ranges to fit on (seedmap layout with gt/)")
     ap.add_argument("--out", type=Path, required=True, help="model JSON")
     ap.add_argument("--cache", type=Path, default=Path("data/assoc_fit_cache"), help="candidate cache folder")
-    ap.add_argument("--features", default=",".join(CUE_NAMES), help="comma-separated subset of the cues")
+    ap.add_argument("--features", default=",".join(cues), help="comma-separated subset of the cues")
     ap.add_argument("--hidden", default="32,16")
-    ap.add_argument("--epochs", type=int, default=40)
+    ap.add_argument("--epochs", type=int, default=epochs)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--margin", type=float, default=1.0)
     ap.add_argument("--cv", action="store_true", help="also leave-one-range-out scores")
-    ap.add_argument("--report", type=Path, default=Path("benchmarks/results/fit_assoc_score.json"), help="JSON report")
+    ap.add_argument("--report", type=Path, default=report, help="JSON report")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = fit_arg_parser(__doc__.splitlines()[0], CUE_NAMES, 40, Path("benchmarks/results/fit_assoc_score.json"))
     a = ap.parse_args(argv)
     t0, c0 = time.time(), time.process_time()
     feats = tuple(x for x in a.features.split(",") if x)

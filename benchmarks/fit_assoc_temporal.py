@@ -29,7 +29,6 @@ Never fit on the evaluation ranges (seeds 13, 14, 15, 25, 26).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -41,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from fit_assoc_score import fit, score  # noqa: E402
+from fit_assoc_score import fit, fit_arg_parser, score  # noqa: E402
 
 from seedmap.associate.semantic import (  # noqa: E402
     TEMPORAL_CUE_NAMES,
@@ -152,18 +151,8 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[l
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("ranges", nargs="+", type=Path, help="rendered ranges to fit on (seedmap layout with gt/)")
-    ap.add_argument("--out", type=Path, required=True, help="model JSON")
-    ap.add_argument("--cache", type=Path, default=Path("data/assoc_fit_cache"), help="candidate cache folder")
-    ap.add_argument("--features", default=",".join(TEMPORAL_CUE_NAMES), help="comma-separated subset of the cues")
-    ap.add_argument("--hidden", default="32,16")
-    ap.add_argument("--epochs", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--margin", type=float, default=1.0)
-    ap.add_argument("--cv", action="store_true", help="also leave-one-range-out scores")
-    ap.add_argument("--report", type=Path, default=Path("benchmarks/results/fit_assoc_temporal.json"),
-                    help="JSON report")
+    ap = fit_arg_parser(__doc__.splitlines()[0], TEMPORAL_CUE_NAMES, 30,
+                        Path("benchmarks/results/fit_assoc_temporal.json"))
     a = ap.parse_args(argv)
     t0, c0 = time.time(), time.process_time()
     feats = tuple(x for x in a.features.split(",") if x)
