@@ -115,6 +115,56 @@ def segmentation_mask(seg: object, h: int, w: int) -> np.ndarray:
     raise ValueError("segmentation must be a polygon list or an RLE dict")
 
 
+def _check_coco_images(images, root: Path, p: Path) -> dict:
+    """COCO ``images``: ids unique, files present under ``root`` -> {id: (width, height) or None}.
+
+    Checked before a training run starts, so a bad file is one line naming it and leaves no run folder
+    (a missing image used to be found at the first batch, after the run folder was written)."""
+    if not isinstance(images, list) or not images:
+        raise InputError("COCO 'images' is empty (nothing to train on)", p)
+    sizes: dict = {}
+    for k, im in enumerate(images):
+        if not isinstance(im, dict) or "id" not in im or "file_name" not in im:
+            raise InputError(f"images[{k}] needs 'id' and 'file_name'", p)
+        if im["id"] in sizes:
+            raise InputError(f"image id {im['id']} appears twice", p)
+        if not (root / im["file_name"]).is_file():
+            raise InputError(f"image {im['file_name']!r} (id {im['id']}) not found under {root} "
+                             "(--images-root names the image folder)", p)
+        wh = (im.get("width"), im.get("height"))
+        sizes[im["id"]] = wh if all(isinstance(v, (int, float)) and v > 0 for v in wh) else None
+    return sizes
+
+
+def _check_coco_annotation(a, sizes: dict, cats: dict, p: Path) -> None:
+    """One COCO annotation: its image and category exist, its ``bbox`` is [x, y, w, h] with w, h > 0 inside
+    the image (1 px tolerance). A box outside the image crashed training in OpenCV (warpAffine on an empty
+    crop); an unknown category was trained on silently."""
+    if not isinstance(a, dict) or "image_id" not in a:
+        raise InputError("an annotation has no 'image_id'", p)
+    aid = a.get("id", "?")
+    if a["image_id"] not in sizes:
+        raise InputError(f"annotation {aid}: image_id {a['image_id']} is not in 'images'", p)
+    if cats and "category_id" in a and a["category_id"] not in cats:
+        raise InputError(f"annotation {aid}: category_id {a['category_id']} is not in 'categories'", p)
+    if "bbox" in a:
+        b = a["bbox"]
+        try:
+            x, y, bw, bh = (float(v) for v in b)
+        except (TypeError, ValueError):
+            raise InputError(f"annotation {aid}: bbox must be four numbers [x, y, width, height], got {b!r}",
+                             p) from None
+        if not np.all(np.isfinite([x, y, bw, bh])) or bw <= 0 or bh <= 0:
+            raise InputError(f"annotation {aid}: bbox {b} needs finite numbers and width, height > 0 "
+                             "([x, y, width, height])", p)
+        wh = sizes[a["image_id"]]
+        if wh is not None and (x < -1 or y < -1 or x + bw > wh[0] + 1 or y + bh > wh[1] + 1):
+            raise InputError(f"annotation {aid}: bbox {b} ([x, y, width, height]) is outside the "
+                             f"{wh[0]:g}x{wh[1]:g} image {a['image_id']}", p)
+    elif not a.get("segmentation"):
+        raise InputError(f"annotation {aid}: neither 'bbox' nor 'segmentation'", p)
+
+
 class CocoSource:
     """Images + instance masks from a COCO JSON file (one category or all categories as 'seed')."""
 
@@ -139,10 +189,15 @@ class CocoSource:
                 raise InputError(f"no category named {category!r} (have: {', '.join(cats.values())})", p)
         self.images = d["images"]
         self.anns: dict[int, list[dict]] = {}
+        sizes = _check_coco_images(self.images, self.root, p)
         for a in d["annotations"]:
+            _check_coco_annotation(a, sizes, cats, p)
             if keep_cat is not None and a.get("category_id") not in keep_cat:
                 continue
             self.anns.setdefault(a["image_id"], []).append(a)
+        if not self.anns:
+            raise InputError("no annotations" + (f" of category {category!r}" if category is not None else "")
+                             + " (nothing to train on)", p)
 
     def __len__(self) -> int:
         return len(self.images)
