@@ -384,8 +384,10 @@ def _print_slam_metrics(m, title: str) -> None:
 def slam_cmd(
     dataset: Path = typer.Argument(..., help="Stereo dataset (seedmap layout or any registered loader)."),
     out: Path = typer.Option(..., "--out", "-o", help="Result folder (written atomically)."),
-    detector: str = typer.Option("gt", "--detector", "-d", help="Seed detector for --matcher seeds (gt = oracle)."),
-    matcher: str = typer.Option("seeds", "--matcher", "-m", help="seeds | sift | orb | akaze | surf"),
+    detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Seed detector for --matcher seeds "
+                                           "(default: the --config's detector, else gt = oracle)."),
+    matcher: Optional[str] = typer.Option(None, "--matcher", "-m", help="seeds | sift | orb | akaze | surf "
+                                          "(default: the --config's matcher, else seeds)"),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing result folder."),
@@ -399,7 +401,7 @@ def slam_cmd(
     cfg = _slam_config(config, set_)
     res = run_slam(dataset, out, matcher=matcher, detector=detector, config=cfg, overwrite=overwrite,
                    progress=not quiet, rerun=rerun)
-    _print_slam_metrics(res.metrics, f"seedmap slam: {dataset.name} ({matcher})")
+    _print_slam_metrics(res.metrics, f"seedmap slam: {dataset.name} ({res.metrics.matcher})")
     typer.echo(f"results in {out} (report.html)" + (f", rerun recording {rerun}" if rerun else ""))
 
 

@@ -140,3 +140,8 @@ class SlamConfig(ConfigModel):
     features: dict[str, Any] = Field(default_factory=dict)
     #: process at most this many frames (None = all)
     max_frames: int | None = Field(None, ge=1)
+    #: the run's matcher (seeds | sift | orb | akaze | surf) and seed detector; a result's config.yaml records
+    #: them so that ``seedmap slam DATA --config RESULT/config.yaml`` repeats the run (the --matcher and
+    #: --detector options override them; None: seeds and the gt oracle, the options' defaults)
+    matcher: str | None = None
+    detector: str | None = None

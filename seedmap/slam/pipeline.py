@@ -62,8 +62,8 @@ def _detector_for(name: str, dataset: Path, config=None):
 def run_slam(
     dataset: str | Path,
     out: Path | None,
-    matcher: str = "seeds",
-    detector: str = "gt",
+    matcher: str | None = None,
+    detector: str | None = None,
     config: SlamConfig | None = None,
     overwrite: bool = False,
     progress: bool = True,
@@ -79,6 +79,11 @@ def run_slam(
     from seedmap.slam.core import SemanticSlam
 
     cfg = config or SlamConfig()
+    # matcher / detector: the arguments, else the config's (a result's config.yaml), else seeds / gt; the
+    # resolved ones go into the written config.yaml so that --config repeats the run
+    matcher = matcher if matcher is not None else (cfg.matcher if cfg.matcher is not None else "seeds")
+    detector = detector if detector is not None else (cfg.detector if cfg.detector is not None else "gt")
+    cfg = cfg.model_copy(update={"matcher": matcher, "detector": detector})
     if out is not None:
         out = Path(out)
         check_output_parent(out)

@@ -1,0 +1,151 @@
+"""Second user's-eye audit (session 8): result files are what the README's "Outputs" promises, readable by
+the tools users have (evo, Open3D, COCO consumers), and a result's config.yaml passed back with --config
+repeats the run byte for byte.
+
+Found here: `seedmap slam DATA --detector fast --out R` wrote a config.yaml without the detector or the
+matcher, so `seedmap slam DATA --config R/config.yaml` silently ran the gt oracle (another trajectory).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from seedmap import cli
+
+
+def _run(args: list, monkeypatch) -> int:
+    monkeypatch.setattr(sys, "argv", ["seedmap", *[str(a) for a in args]])
+    with pytest.raises(SystemExit) as e:
+        cli.main()
+    return int(e.value.code or 0)
+
+
+@pytest.fixture(scope="module")
+def slam_result(tiny_range, tmp_path_factory):
+    out = tmp_path_factory.mktemp("audit2_slam") / "r"
+    mp = pytest.MonkeyPatch()
+    try:
+        assert _run(["slam", tiny_range, "--detector", "fast", "-q", "--out", out], mp) == 0
+    finally:
+        mp.undo()
+    return out
+
+
+def test_slam_trajectories_read_by_evo_and_agree(slam_result):
+    from evo.tools import file_interface
+
+    tum = file_interface.read_tum_trajectory_file(str(slam_result / "trajectory.tum"))
+    kitti = file_interface.read_kitti_poses_file(str(slam_result / "trajectory.kitti"))
+    m = json.loads((slam_result / "metrics.json").read_text())
+    assert tum.num_poses == kitti.num_poses == m["frames_tracked"] >= 3
+    assert np.all(np.diff(tum.timestamps) > 0)
+    for a, b in zip(tum.poses_se3, kitti.poses_se3):
+        assert np.allclose(a, b, atol=1e-6)
+        assert np.allclose(a[:3, :3] @ a[:3, :3].T, np.eye(3), atol=1e-6)
+    # the camera travels along the row (world x) at ~0.2 m/s x 0.2 s per frame
+    step = np.linalg.norm(np.diff(tum.positions_xyz, axis=0), axis=1)
+    assert np.all((step > 0.02) & (step < 0.06)), step
+
+
+def test_slam_landmarks_ply_has_the_per_point_labels_of_the_csv(slam_result):
+    import open3d as o3d
+
+    rows = list(csv.DictReader((slam_result / "landmarks.csv").open()))
+    assert rows and {"landmark_id", "seed_id", "cluster_id", "x", "y", "z"} <= set(rows[0])
+    head = (slam_result / "landmarks.ply").read_bytes().split(b"end_header")[0].decode()
+    for f in ("seed_id", "landmark_id", "cluster_id"):
+        assert f"property int {f}" in head
+    pc = o3d.t.io.read_point_cloud(str(slam_result / "landmarks.ply"))
+    xyz = pc.point.positions.numpy()
+    assert len(xyz) == len(rows)
+    ref = np.array([[float(r[k]) for k in ("x", "y", "z")] for r in rows])
+    assert np.allclose(xyz, ref, atol=1e-5)
+    for f in ("seed_id", "landmark_id", "cluster_id"):
+        got = getattr(pc.point, f).numpy().ravel()
+        assert np.array_equal(got, [int(r[f]) for r in rows]), f
+    assert len(np.unique(pc.point.landmark_id.numpy())) == len(rows)
+
+
+def test_slam_config_yaml_repeats_the_run(slam_result, tiny_range, tmp_path, monkeypatch):
+    cfg = yaml.safe_load((slam_result / "config.yaml").read_text())
+    assert cfg["detector"] == "fast" and cfg["matcher"] == "seeds"
+    again = tmp_path / "again"
+    assert _run(["slam", tiny_range, "--config", slam_result / "config.yaml", "-q", "--out", again],
+                monkeypatch) == 0
+    for f in ("trajectory.tum", "trajectory.kitti", "landmarks.csv", "config.yaml"):
+        assert (again / f).read_bytes() == (slam_result / f).read_bytes(), f
+    assert json.loads((again / "metrics.json").read_text())["detector"] == "fast"
+    # an option still overrides the config's choice, and the written config says what ran
+    orb = tmp_path / "orb"
+    assert _run(["slam", tiny_range, "--config", slam_result / "config.yaml", "--matcher", "orb", "-q",
+                 "--set", "max_frames=3", "--out", orb], monkeypatch) == 0
+    assert yaml.safe_load((orb / "config.yaml").read_text())["matcher"] == "orb"
+    assert json.loads((orb / "metrics.json").read_text())["matcher"] == "orb"
+
+
+def test_slam_config_of_session_7_without_matcher_or_detector_still_reads(tiny_range, tmp_path, monkeypatch):
+    # configs written before the fix lack the two keys: they mean the old defaults (seeds, gt oracle)
+    from seedmap.slam.config import SlamConfig
+
+    old = SlamConfig().model_dump(mode="json")
+    old.pop("matcher"), old.pop("detector")
+    p = tmp_path / "old.yaml"
+    p.write_text(yaml.safe_dump(old))
+    out = tmp_path / "o"
+    assert _run(["slam", tiny_range, "--config", p, "-q", "--set", "max_frames=3", "--out", out], monkeypatch) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["detector"] == "gt" and m["matcher"] == "seeds"
+
+
+def test_detect_coco_is_valid_and_config_repeats_it(tiny_range, tmp_path, monkeypatch):
+    det = tmp_path / "det"
+    assert _run(["detect", tiny_range, "--detector", "fast", "--out", det], monkeypatch) == 0
+    d = json.loads((det / "detections_coco.json").read_text())
+    imgs = {im["id"]: im for im in d["images"]}
+    assert len(imgs) == len(d["images"]) == 2 * 11
+    cats = {c["id"] for c in d["categories"]}
+    ids = [a["id"] for a in d["annotations"]]
+    assert len(ids) == len(set(ids)) > 100
+    for a in d["annotations"]:
+        im = imgs[a["image_id"]]
+        assert a["category_id"] in cats and a["iscrowd"] == 0
+        x, y, w, h = a["bbox"]
+        assert w > 0 and h > 0 and a["area"] > 0
+        assert x >= 0 and y >= 0 and x + w <= im["width"] and y + h <= im["height"]
+        assert a["area"] <= w * h + 1e-6
+        for poly in a["segmentation"]:
+            assert len(poly) >= 6 and len(poly) % 2 == 0
+            q = np.asarray(poly).reshape(-1, 2)
+            assert np.all(np.isfinite(q))
+        kx, ky, v = a["keypoints"]
+        assert v == 2 and x - 1 <= kx <= x + w + 1 and y - 1 <= ky <= y + h + 1
+    for im in d["images"]:
+        assert (tiny_range / im["file_name"]).is_file()
+    # the same command from its config.yaml: identical detections
+    again = tmp_path / "again"
+    assert _run(["detect", tiny_range, "--detector", "fast", "--config", det / "config.yaml",
+                 "--out", again], monkeypatch) == 0
+    assert (again / "detections_coco.json").read_bytes() == (det / "detections_coco.json").read_bytes()
+
+
+def test_simulate_range_seed_determinism_and_config_round_trip(tmp_path, monkeypatch):
+    base = ["simulate", "range", "--length", "0.12", "--set", "camera.scale=0.12", "-q"]
+    a, b, c, r = tmp_path / "a", tmp_path / "b", tmp_path / "c", tmp_path / "r"
+    assert _run([*base, "--seed", "4", "--out", a], monkeypatch) == 0
+    assert _run([*base, "--seed", "4", "--out", b], monkeypatch) == 0
+    assert _run([*base, "--seed", "5", "--out", c], monkeypatch) == 0
+    assert _run(["simulate", "range", "-q", "--config", a / "gt" / "config.yaml", "--out", r], monkeypatch) == 0
+    files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file())
+    assert len(files) > 10
+    for rel in files:
+        assert (b / rel).read_bytes() == (a / rel).read_bytes(), rel
+        assert (r / rel).read_bytes() == (a / rel).read_bytes(), rel
+    assert (c / "left" / "000000.png").read_bytes() != (a / "left" / "000000.png").read_bytes()
+    assert (c / "gt" / "seeds.csv").read_bytes() != (a / "gt" / "seeds.csv").read_bytes()
