@@ -53,7 +53,13 @@ def load_fk_poses(root: Path, n_frames: int) -> np.ndarray:
         raise InputError("arm description is not valid YAML", arm_path) from None
     if not isinstance(arm, dict):
         raise InputError("arm description must be a YAML mapping", arm_path)
-    if len(q) != n_frames or not np.array_equal(views, np.arange(n_frames)):
+    if len(q) == n_frames and not np.array_equal(views, np.arange(n_frames)):
+        # the right number of rows, but not views 0..N-1 in order (was 'has 6 rows for views 0..5, but the
+        # dataset has 6 frames', which names no problem)
+        k = int(np.flatnonzero(views != np.arange(n_frames))[0])
+        raise InputError(f"joints file rows must be views 0..{n_frames - 1} in order, one row each; line {k + 2} "
+                         f"has view {views[k]} (expected {k})", root / JOINTS_FILE)
+    if len(q) != n_frames:
         raise InputError(f"joints file has {len(q)} rows for views {views.min()}..{views.max()}, "
                          f"but the dataset has {n_frames} frames", root / JOINTS_FILE)
     try:
@@ -270,7 +276,7 @@ def detections_csv_text(kps: list[StereoKeypoints | None]) -> str:
         rows.append(np.column_stack([np.full(len(kp.right), k), np.ones(len(kp.right)), kp.right,
                                      np.zeros(len(kp.right)), np.full(len(kp.right), np.nan)]))
     a = np.concatenate(rows) if rows else np.zeros((0, 6))
-    return _csv("view,side,u,v,size_px,sgbm_disp_px", a, "%.6g")
+    return _csv("view,side,u,v,size_px,sgbm_disp_px", a, "%.10g")
 
 
 def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints | None]:
