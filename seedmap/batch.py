@@ -316,8 +316,8 @@ def _run_ray(jobs: list[tuple], workers: int, address: str, done: Callable[[dict
 def run_batch(
     field: str | Path,
     out: str | Path,
-    matcher: str = "seeds",
-    detector: str = "gt",
+    matcher: str | None = None,
+    detector: str | None = None,
     config: Any = None,
     workers: int = 1,
     ray: str | None = None,
@@ -340,6 +340,11 @@ def run_batch(
         raise ConfigError(f"--workers must be at least 1, got {workers}")
     check_output_parent(out)
     cfg = config or SlamConfig()
+    # as run_slam: the arguments, else the config's (a result's config.yaml), else seeds / gt; the written
+    # config.yaml names the ones used
+    matcher = matcher if matcher is not None else (cfg.matcher if cfg.matcher is not None else "seeds")
+    detector = detector if detector is not None else (cfg.detector if cfg.detector is not None else "gt")
+    cfg = cfg.model_copy(update={"matcher": matcher, "detector": detector})
     ranges = find_ranges(field, exclude=[out])
     if not ranges:
         raise InputError("no dataset found below this folder (no loader recognises any sub-folder)", field)

@@ -780,8 +780,10 @@ def batch_cmd(
     workers: int = typer.Option(1, "--workers", "-j", help="Ranges run in parallel (processes or Ray CPUs)."),
     ray: Optional[str] = typer.Option(None, "--ray", help="Ray cluster address (auto, ray://host:10001) or "
                                       "'local' to start one here (needs Ray: the seedmap 'cluster' extra)."),
-    matcher: str = typer.Option("seeds", "--matcher", "-m", help="seeds | sift | orb | akaze | surf"),
-    detector: str = typer.Option("gt", "--detector", "-d", help="Seed detector for --matcher seeds (gt = oracle)."),
+    matcher: Optional[str] = typer.Option(None, "--matcher", "-m", help="seeds | sift | orb | akaze | surf "
+                                          "(default: the --config's matcher, else seeds)"),
+    detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Seed detector for --matcher seeds "
+                                           "(default: the --config's detector, else gt = oracle)."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),

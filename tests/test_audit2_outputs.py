@@ -149,3 +149,18 @@ def test_simulate_range_seed_determinism_and_config_round_trip(tmp_path, monkeyp
         assert (r / rel).read_bytes() == (a / rel).read_bytes(), rel
     assert (c / "left" / "000000.png").read_bytes() != (a / "left" / "000000.png").read_bytes()
     assert (c / "gt" / "seeds.csv").read_bytes() != (a / "gt" / "seeds.csv").read_bytes()
+
+
+def test_batch_takes_matcher_and_detector_from_the_config(slam_result, tiny_range, tmp_path, monkeypatch):
+    # `seedmap batch FIELD --config RESULT/config.yaml` ran the gt oracle whatever the config's run used
+    import shutil
+
+    field = tmp_path / "field"
+    shutil.copytree(tiny_range, field / "r1")
+    out = tmp_path / "b"
+    assert _run(["batch", field, "--config", slam_result / "config.yaml", "--set", "max_frames=3", "-q",
+                 "--out", out], monkeypatch) == 0
+    assert json.loads((out / "r1" / "metrics.json").read_text())["detector"] == "fast"
+    for p in (out / "config.yaml", out / "r1" / "config.yaml"):
+        c = yaml.safe_load(p.read_text())
+        assert c["detector"] == "fast" and c["matcher"] == "seeds", p
