@@ -634,6 +634,7 @@ def simulate_panicle_cmd(
 ) -> None:
     """Simulate a UR5 arm circling one panicle with the stereo camera (images, joints.csv, arm.yaml, GT)."""
     from seedmap.config import load_config
+    from seedmap.errors import ConfigError
     from seedmap.sim.panicle_scan import PanicleScanConfig, simulate_panicle
 
     extra = list(set_ or [])
@@ -643,7 +644,15 @@ def simulate_panicle_cmd(
         extra.append(f"arm.views={views}")
     if exposure is not None:
         extra.append(f"exposure={exposure}")
-    cfg = load_config(PanicleScanConfig, config, extra)
+    try:
+        cfg = load_config(PanicleScanConfig, config, extra)
+    except ConfigError:
+        # a scan's gt/ holds config.yaml (the panicle's scene) next to scan.yaml (the scan): the natural guess
+        # 'gt/config.yaml' said "unknown config key 'preset'"
+        if config is not None and (config.parent / "scan.yaml").is_file() and config.name != "scan.yaml":
+            raise ConfigError("this is the simulated scene's config; a scan is repeated from the scan.yaml "
+                              f"next to it (--config {config.parent / 'scan.yaml'})", config) from None
+        raise
     path = simulate_panicle(cfg, out, overwrite=overwrite, progress=not quiet)
     typer.echo(f"wrote {path}")
 

@@ -153,3 +153,17 @@ def test_bad_user_scan_is_one_line(user_scan, tmp_path, monkeypatch, capsys, cas
     line = _error_line(capsys)
     assert needle in line, line
     assert not out.exists()
+
+
+def test_simulate_panicle_repeats_from_scan_yaml_and_names_it_for_config_yaml(tmp_path, monkeypatch, capsys):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _run(["simulate", "panicle", "--seed", "8", "--views", "3", "-q", "--out", a], monkeypatch) == 0
+    assert _run(["simulate", "panicle", "-q", "--config", a / "gt" / "scan.yaml", "--out", b], monkeypatch) == 0
+    for rel in ("joints.csv", "arm.yaml", "left/000002.png", "right/000001.png", "gt/seeds.csv"):
+        assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
+    capsys.readouterr()
+    # gt/config.yaml is the scene's config: was "unknown config key 'preset'"
+    assert _run(["simulate", "panicle", "-q", "--config", a / "gt" / "config.yaml", "--out", tmp_path / "c"],
+                monkeypatch) == 2
+    line = _error_line(capsys)
+    assert str(a / "gt" / "scan.yaml") in line and str(a / "gt" / "config.yaml") in line
