@@ -312,6 +312,9 @@ def train_fast_cnn_cmd(
     from seedmap.detect.train_cnn import CnnTrainConfig, train_cnn
 
     for d in list(data) + list(val or []):
+        if d.is_file() and d.suffix.lower() == ".json":  # said 'dataset folder not found' of an existing file
+            raise SeedmapError(f"{d}: fast-cnn trains on simulated datasets (GT masks); COCO labels are read by "
+                               "`seedmap train detector` and `seedmap train segmenter`")
         if not d.is_dir():
             raise SeedmapError(f"{d}: dataset folder not found")
     if (out / "fast_cnn.onnx").exists() and not resume:

@@ -164,3 +164,15 @@ def test_bad_coco_is_one_line_naming_the_file_and_leaves_no_folder(tiny_range, t
            if ln.startswith("error: ") or "Traceback" in ln]
     assert len(err) == 1 and needle in err[0] and str(p) in err[0], err
     assert not out.exists()
+
+
+def test_fast_cnn_on_a_coco_file_says_which_trainers_read_coco(tiny_range, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("torch")
+    coco, _ = _export_coco(tiny_range, frames=(0,))
+    p = tmp_path / "labels.json"
+    p.write_text(json.dumps(coco))
+    out = tmp_path / "fc"
+    assert _run(["train", "fast-cnn", p, "--out", out, "--steps", "1"], monkeypatch) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
+    assert len(err) == 1 and str(p) in err[0] and "train segmenter" in err[0], err  # was 'folder not found'
+    assert not out.exists()
