@@ -40,9 +40,19 @@ def _rle(m: np.ndarray) -> dict:
     return {"counts": runs, "size": list(m.shape)}
 
 
+_EXPORTS: dict = {}
+
+
 def _export_coco(root: Path, frames=(0, 1), min_area: int = 6) -> tuple[dict, dict]:
     """COCO of the left GT instances of ``frames``: every other seed as a polygon (pixel-edge
-    coordinates) or an RLE mask. Returns the COCO dict and {annotation id: GT mask}."""
+    coordinates) or an RLE mask. Returns the COCO dict and {annotation id: GT mask} (computed once)."""
+    key = (str(root), tuple(frames), min_area)
+    if key not in _EXPORTS:
+        _EXPORTS[key] = _export_coco_uncached(root, frames, min_area)
+    return copy.deepcopy(_EXPORTS[key][0]), _EXPORTS[key][1]
+
+
+def _export_coco_uncached(root: Path, frames, min_area: int) -> tuple[dict, dict]:
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
     ds = SeedmapDataset(root)
