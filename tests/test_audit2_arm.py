@@ -128,6 +128,7 @@ def test_all_black_views_are_recorded_skips(user_scan, tmp_path, monkeypatch, ca
 
 
 @pytest.mark.parametrize("case, needle", [
+    ("jpeg_images", "this folder has 000000.jpg (convert the images to PNG)"),
     ("no_arm_yaml", "arm description not found"),
     ("short_joints", "joints file has 5 rows"),
     ("unordered_joints", "line 3 has view 2 (expected 1)"),
@@ -139,7 +140,11 @@ def test_bad_user_scan_is_one_line(user_scan, tmp_path, monkeypatch, capsys, cas
     jp = scan / "joints.csv"
     lines = jp.read_text().splitlines()
     det = ["--detector", "fast"]
-    if case == "no_arm_yaml":
+    if case == "jpeg_images":  # was '.../000000.png: image file not found'
+        for f in sorted(scan.glob("*/*.png")):
+            cv2.imwrite(str(f.with_suffix(".jpg")), cv2.imread(str(f)))
+            f.unlink()
+    elif case == "no_arm_yaml":
         (scan / "arm.yaml").unlink()
     elif case == "short_joints":
         jp.write_text("\n".join(lines[:-1]) + "\n")

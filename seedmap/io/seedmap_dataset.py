@@ -234,6 +234,11 @@ class SeedmapDataset:
     def __getitem__(self, i: int) -> StereoFrame:
         if not 0 <= i < len(self):
             raise IndexError(i)
+        for cam in CAMERAS:  # a user's own scan with JPEGs said only '000000.png: image file not found'
+            p = self.image_path(i, cam)
+            if not p.is_file() and (other := sorted(p.parent.glob(p.stem + ".*"))):
+                raise InputError(f"image file not found: seedmap's layout names frames {cam}/NNNNNN.png and this "
+                                 f"folder has {other[0].name} (convert the images to PNG)", p)
         left = read_rgb(self.image_path(i, "left"))
         right = read_rgb(self.image_path(i, "right"))
         if left.shape != right.shape:
