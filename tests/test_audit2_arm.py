@@ -10,22 +10,13 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import yaml
 
-from seedmap import cli
-
-
-def _run(args: list, monkeypatch) -> int:
-    monkeypatch.setattr(sys, "argv", ["seedmap", *[str(a) for a in args]])
-    with pytest.raises(SystemExit) as e:
-        cli.main()
-    return int(e.value.code or 0)
+from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir import mode)
 
 
 def _error_line(capsys) -> str:

@@ -10,23 +10,15 @@ from __future__ import annotations
 
 import copy
 import json
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from seedmap import cli
 from seedmap.detect.labels import CocoSource
 from seedmap.errors import InputError
-
-
-def _run(args: list, monkeypatch) -> int:
-    monkeypatch.setattr(sys, "argv", ["seedmap", *[str(a) for a in args]])
-    with pytest.raises(SystemExit) as e:
-        cli.main()
-    return int(e.value.code or 0)
+from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir import mode)
 
 
 def _rle(m: np.ndarray) -> dict:

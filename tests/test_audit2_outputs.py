@@ -10,21 +10,12 @@ from __future__ import annotations
 
 import csv
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from seedmap import cli
-
-
-def _run(args: list, monkeypatch) -> int:
-    monkeypatch.setattr(sys, "argv", ["seedmap", *[str(a) for a in args]])
-    with pytest.raises(SystemExit) as e:
-        cli.main()
-    return int(e.value.code or 0)
+from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir import mode)
 
 
 @pytest.fixture(scope="module")

@@ -5,25 +5,17 @@ Each test reproduces a bug the audit found (the command, the input, what the use
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from seedmap import cli
 from seedmap.errors import ConfigError, InputError
 from seedmap.records import StereoCalib
+from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir import mode)
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 EUROC = REAL / "euroc_v101_micro_stereo"
-
-
-def _run(args: list[str], monkeypatch) -> int:
-    monkeypatch.setattr(sys, "argv", ["seedmap", *[str(a) for a in args]])
-    with pytest.raises(SystemExit) as e:
-        cli.main()
-    return int(e.value.code or 0)
 
 
 def _one_error_line(err: str) -> str:

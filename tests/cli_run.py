@@ -1,0 +1,17 @@
+"""Run the ``seedmap`` CLI in-process from a test (shared by the audit tests)."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from seedmap import cli
+
+
+def run_cli(args: list, monkeypatch) -> int:
+    """Exit code of ``seedmap ARGS`` (paths may be Path objects); stdout/stderr go to pytest's capture."""
+    monkeypatch.setattr(sys, "argv", ["seedmap", *[str(a) for a in args]])
+    with pytest.raises(SystemExit) as e:
+        cli.main()
+    return int(e.value.code or 0)
