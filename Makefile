@@ -5,6 +5,8 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.seedmap-installed
+# --no-cache-dir: the CUDA build of torch is ~5.5 GB installed; caching its wheels too can fill a small disk.
+PIP    := $(BIN)/python -m pip --no-cache-dir
 # torch/torchvision for the learned detector; pip finds these pinned wheels on this machine's disk.
 TORCH_PINS ?= torch==2.14.1 torchvision==0.29.1
 
@@ -14,10 +16,11 @@ setup: $(STAMP)
 
 $(STAMP): pyproject.toml
 	@bash scripts/install_system_deps.sh
+	@avail=$$(df -Pk . | awk 'NR==2{print $$4}'); if [ "$$avail" -lt 10000000 ]; then echo "warning: $$((avail/1024)) MiB free here; the environment (.venv, with the CUDA build of torch) needs about 9 GB" >&2; fi
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q $(TORCH_PINS) || $(BIN)/python -m pip install -q "torch>=2.2,<3" "torchvision>=0.17,<1"
-	$(BIN)/python -m pip install -q -e '.[learned,cluster,dev]'
+	$(PIP) install -q --upgrade pip
+	$(PIP) install -q $(TORCH_PINS) || $(PIP) install -q "torch>=2.2,<3" "torchvision>=0.17,<1"
+	$(PIP) install -q -e '.[learned,cluster,dev]'
 	@touch $(STAMP)
 
 demo: setup
