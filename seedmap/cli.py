@@ -112,9 +112,10 @@ def simulate_stats_cmd(
 def detect_cmd(
     dataset: Path = typer.Argument(..., help="Dataset folder (seedmap layout or any supported format)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist unless --overwrite)."),
-    detector: str = typer.Option("default", "--detector", "-d",
-                                 help="gt (ORACLE, simulated data) | fast (CNN if shipped) | fast-classic | "
-                                      "fast-cnn | frcnn-pix2pix | default."),
+    detector: Optional[str] = typer.Option(None, "--detector", "-d",
+                                           help="gt (ORACLE, simulated data) | fast (CNN if shipped) | fast-classic | "
+                                                "fast-cnn | frcnn-pix2pix | default (the --config's detector, else "
+                                                "default = the best available)."),
     weights: Optional[Path] = typer.Option(None, "--weights",
                                            help="Weights: .safetensors of frcnn-pix2pix, .onnx of fast-cnn."),
     overlay: bool = typer.Option(False, "--overlay", help="Also write PNGs with the fitted ellipses drawn."),
@@ -124,10 +125,12 @@ def detect_cmd(
 ) -> None:
     """Detect seeds (boxes, ellipses, keypoints) in every frame: JSON lines + COCO JSON (+ overlays)."""
     from seedmap.config import load_config
-    from seedmap.detect.config import DetectConfig
-    from seedmap.detect.run import run_detect
+    from seedmap.detect.run import DetectRunConfig, run_detect
 
-    cfg = load_config(DetectConfig, config, set_ or [])
+    cfg = load_config(DetectRunConfig, config, set_ or [])
+    detector = detector or cfg.detector or "default"  # a result's config.yaml records what ran
+    if weights is None and cfg.weights and detector == cfg.detector:
+        weights = Path(cfg.weights)
     if detector == "gt":  # the oracle reads seedmap's GT layout: say so for real data (was a TypeError traceback)
         from seedmap.io.seedmap_dataset import SeedmapDataset
 

@@ -8,13 +8,26 @@ from pathlib import Path
 
 import numpy as np
 
-from seedmap.detect.base import make_detector
+from seedmap.detect.base import default_detector_name, make_detector
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses
 from seedmap.detect.io import detection_image_sizes, detection_record, read_detections, write_detection_files
 from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_output_dir, atomic_write_text
 from seedmap.io.images import write_png
+
+
+class DetectRunConfig(DetectConfig):
+    """What ``seedmap detect`` writes as a result's ``config.yaml``: the detector settings plus which detector
+    and weights ran, so that ``seedmap detect DATA --config RESULT/config.yaml`` repeats the run (the
+    ``--detector`` / ``--weights`` options override them). A plain :class:`DetectConfig` file (no ``detector``
+    key, as written before session 9, or a SLAM config's ``detect`` section) still loads: None means the
+    options' defaults (the best available detector, its shipped weights)."""
+
+    #: registry name (gt | fast | fast-classic | fast-cnn | frcnn-pix2pix); ``default`` is resolved when written
+    detector: str | None = None
+    #: weights file read by fast-cnn (.onnx) or frcnn-pix2pix (.safetensors); None = the shipped ones
+    weights: str | None = None
 
 
 def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", weights: str | Path | None = None,
@@ -29,6 +42,8 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
     from seedmap.config import dump_config
 
     cfg = config or DetectConfig()
+    if isinstance(cfg, DetectRunConfig):  # the detector's own settings only (they forbid unknown keys)
+        cfg = DetectConfig.model_validate(cfg.model_dump(exclude={"detector", "weights"}))
     seq = cfg.dataset.open(dataset)
     det = make_detector(detector, dataset=seq if detector == "gt" else None, weights=weights, config=cfg)
     idx = list(range(len(seq)))[frames] if frames is not None else list(range(len(seq)))
@@ -53,7 +68,10 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
                 if overlay:
                     write_png(tmp / "overlay" / cam / f"{i:06d}.png", draw_ellipses(img, d.ellipses))
         write_detection_files(tmp, records)
-        dump_config(cfg, tmp / "config.yaml")
+        used = default_detector_name() if detector in ("default", "auto") else detector
+        run_cfg = DetectRunConfig.model_validate({**cfg.model_dump(), "detector": used,
+                                                 "weights": str(Path(weights).resolve()) if weights else None})
+        dump_config(run_cfg, tmp / "config.yaml")
         meta = {"detector": det.name, "oracle": bool(det.is_oracle), "dataset": str(Path(dataset).resolve()),
                 "weights": str(weights) if weights else None, "frames": len(idx),
                 "images": len(records), "detections": int(sum(r["n"] for r in records)),
