@@ -70,8 +70,17 @@ def default_cnn_path(domain: str = "field") -> Path:
 
 def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
     """The ONNX file a detector with config ``cfg`` runs: ``weights``, else ``cfg.weights``, else the
-    shipped network of ``cfg.domain``."""
-    return Path(weights or cfg.weights or default_cnn_path(cfg.domain))
+    shipped network of ``cfg.domain``.
+
+    A bare file name that is not a file in the working directory names one of the shipped networks in
+    ``seedmap/detect/weights/`` (e.g. ``--set cnn.weights=fast_cnn_s9.onnx``), so an opt-in network can be
+    chosen without knowing where the package is installed."""
+    p = Path(weights or cfg.weights or default_cnn_path(cfg.domain))
+    if p.parent == Path(".") and not p.is_file():
+        shipped = Path(__file__).with_name("weights") / p.name
+        if shipped.is_file():
+            return shipped
+    return p
 
 
 def load_session(path: str | Path, threads: int = 0):  # noqa: ANN201 - onnxruntime.InferenceSession

@@ -103,7 +103,8 @@ class CnnConfig(ConfigModel):
     (8 images): 24 % of the image area (margins included) holds 99.5 % of the GT seeds >= 6 px.
     """
 
-    #: ONNX weights; None = the shipped network of ``domain``
+    #: ONNX weights; None = the shipped network of ``domain``; a bare file name that is no file in the working
+    #: directory names a file in seedmap/detect/weights/ (opt-in networks, e.g. ``fast_cnn_s9.onnx``)
     weights: str | None = None
     #: which shipped network ``weights = None`` means: ``field`` = seedmap/detect/weights/fast_cnn.onnx (trained on
     #: simulated row ranges), ``arm`` = fast_cnn_arm.onnx (trained on ranges + close-up arm scans of panicles,
