@@ -665,7 +665,9 @@ def simulate_panicle_cmd(
 
 @app.command("reconstruct")
 def reconstruct_cmd(
-    dataset: Path = typer.Argument(..., help="Arm scan dataset (seedmap layout + joints.csv + arm.yaml)."),
+    dataset: Path = typer.Argument(..., help="Arm scan: stereo pairs in any format seedmap reads (seedmap layout, "
+                                             "image folder + calibration, bag) + joints.csv + arm.yaml (or "
+                                             "--set joints=FILE --set arm=FILE)."),
     out: Path = typer.Option(..., "--out", "-o", help="Results folder to create."),
     register: Optional[str] = typer.Option(None, "--register", help="fk | full | seeds (default seeds)."),
     detector: Optional[str] = typer.Option(None, "--detector", help="Detector name (default gt = ORACLE)."),

@@ -119,7 +119,6 @@ def test_all_black_views_are_recorded_skips(user_scan, tmp_path, monkeypatch, ca
 
 
 @pytest.mark.parametrize("case, needle", [
-    ("jpeg_images", "this folder has 000000.jpg (convert the images to PNG)"),
     ("no_arm_yaml", "arm description not found"),
     ("short_joints", "joints file has 5 rows"),
     ("unordered_joints", "line 3 has view 2 (expected 1)"),
@@ -131,11 +130,7 @@ def test_bad_user_scan_is_one_line(user_scan, tmp_path, monkeypatch, capsys, cas
     jp = scan / "joints.csv"
     lines = jp.read_text().splitlines()
     det = ["--detector", "fast"]
-    if case == "jpeg_images":  # was '.../000000.png: image file not found'
-        for f in sorted(scan.glob("*/*.png")):
-            cv2.imwrite(str(f.with_suffix(".jpg")), cv2.imread(str(f)))
-            f.unlink()
-    elif case == "no_arm_yaml":
+    if case == "no_arm_yaml":
         (scan / "arm.yaml").unlink()
     elif case == "short_joints":
         jp.write_text("\n".join(lines[:-1]) + "\n")
@@ -149,6 +144,22 @@ def test_bad_user_scan_is_one_line(user_scan, tmp_path, monkeypatch, capsys, cas
     line = _error_line(capsys)
     assert needle in line, line
     assert not out.exists()
+
+
+def test_jpeg_user_scan_reconstructs(user_scan, user_result, tmp_path, monkeypatch):
+    """JPEG images (not seedmap's NNNNNN.png layout) are read by the image-folder loader (session 9; session 8
+    refused them with a one-line error)."""
+    scan = tmp_path / "scan"
+    shutil.copytree(user_scan, scan)
+    for f in sorted(scan.glob("*/*.png")):
+        cv2.imwrite(str(f.with_suffix(".jpg")), cv2.imread(str(f)), [cv2.IMWRITE_JPEG_QUALITY, 95])
+        f.unlink()
+    out = tmp_path / "out"
+    assert _run(["reconstruct", scan, "--detector", "fast", "-q", "--out", out], monkeypatch) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    png = json.loads((user_result / "metrics.json").read_text())
+    assert m["views"] == 6 and not m["skipped_views"] and m["registered_views"] == png["registered_views"]
+    assert abs(m["seed_count"] - png["seed_count"]) <= 0.05 * png["seed_count"], (m["seed_count"], png["seed_count"])
 
 
 def test_simulate_panicle_repeats_from_scan_yaml_and_names_it_for_config_yaml(tmp_path, monkeypatch, capsys):

@@ -60,3 +60,39 @@ def test_detect_result_config_repeats_the_run(tiny_range, tmp_path, monkeypatch)
     old.write_text(yaml.safe_dump({k: v for k, v in cfg.items() if k not in ("detector", "weights")}))
     assert run_cli(["detect", tiny_range, "--config", old, "--out", plain], monkeypatch) == 0
     assert yaml.safe_load((plain / "config.yaml").read_text())["detector"] == "fast"
+
+
+def test_reconstruct_reads_a_plain_image_folder_with_joints_elsewhere(tmp_path, monkeypatch, capsys):
+    """A user's arm scan as a generic stereo folder (images not named NNNNNN.png, joints and arm files kept
+    elsewhere) reconstructs to the same result as the same scan in seedmap's layout."""
+    import shutil
+
+    data = tmp_path / "p3"
+    assert run_cli(["simulate", "panicle", "--seed", "3", "--views", "4", "--out", data, "-q",
+                    "--set", "sim.camera.scale=0.18"], monkeypatch) == 0
+    user, arm_dir = tmp_path / "user_scan", tmp_path / "robot"
+    for cam in ("left", "right"):
+        (user / cam).mkdir(parents=True)
+        for k, f in enumerate(sorted((data / cam).glob("*.png"))):
+            shutil.copy(f, user / cam / f"view_{k:02d}.png")
+    shutil.copy(data / "calib.yaml", user / "calib.yaml")
+    shutil.copy(data / "times.txt", user / "times.txt")
+    arm_dir.mkdir()
+    shutil.copy(data / "joints.csv", arm_dir / "joints_rad.csv")
+    shutil.copy(data / "arm.yaml", arm_dir / "ur5.yaml")
+    before = sorted(p.name for p in user.rglob("*"))
+
+    common = ["--register", "seeds", "--detector", "fast", "-q"]
+    assert run_cli(["reconstruct", data, "--out", tmp_path / "a", *common], monkeypatch) == 0
+    # without the joints file: one line naming the missing file, nothing written
+    capsys.readouterr()
+    assert run_cli(["reconstruct", user, "--out", tmp_path / "b", *common], monkeypatch) == 2
+    assert "joints.csv" in capsys.readouterr().err and not (tmp_path / "b").exists()
+    assert run_cli(["reconstruct", user, "--out", tmp_path / "b", *common, "--set", f"joints={arm_dir / 'joints_rad.csv'}",
+                    "--set", f"arm={arm_dir / 'ur5.yaml'}"], monkeypatch) == 0
+    a = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    b = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert a["seed_count"] > 20 and b["seed_count"] == a["seed_count"]
+    assert "gt" in a and "gt" not in b  # a user's folder has no ground truth
+    assert (tmp_path / "a" / "seeds.csv").read_bytes() == (tmp_path / "b" / "seeds.csv").read_bytes()
+    assert sorted(p.name for p in user.rglob("*")) == before  # the input is untouched

@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import Field
 
 from seedmap.config import ConfigModel, apply_overrides
+from seedmap.io.options import DatasetOptions
 
 #: Per-detector settings of the multiview counter, applied on top of CountConfig by
 #: CountConfig.for_detector (the pipeline and ``seedmap count`` pick them from the run's detector
@@ -266,3 +267,11 @@ class ReconConfig(ConfigModel):
     registration: RegisterConfig = Field(default_factory=RegisterConfig)
     count: CountConfig = Field(default_factory=CountConfig)
     min_view_points: int = Field(500, ge=0, description="views with fewer valid 3D points are skipped")
+    #: how the scan is opened: seedmap layout, or any format seedmap reads (an image folder with a Kalibr /
+    #: ROS / OpenCV calibration, a bag...), e.g. ``--set dataset.format=folder`` (see seedmap.io)
+    dataset: DatasetOptions = Field(default_factory=DatasetOptions)
+    #: measured joint angles, one row per view (``view,q1..q6`` in radians); None = ``joints.csv`` beside the
+    #: images (in the dataset folder, or next to a bag file)
+    joints: str | None = None
+    #: the arm description (UR5 DH, base pose, hand-eye); None = ``arm.yaml`` beside the images
+    arm: str | None = None

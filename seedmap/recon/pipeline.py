@@ -38,13 +38,26 @@ JOINTS_FILE = "joints.csv"
 ARM_FILE = "arm.yaml"
 
 
-def load_fk_poses(root: Path, n_frames: int) -> np.ndarray:
-    """Nominal camera poses from ``joints.csv`` (measured joints) and ``arm.yaml`` (DH, base, hand-eye)."""
+def scan_files(root: str | Path, cfg: ReconConfig | None = None) -> tuple[Path, Path]:
+    """The joints and arm files of a scan: the config's, else ``joints.csv`` / ``arm.yaml`` in the dataset folder
+    (next to the file for a bag)."""
+    root = Path(root)
+    base = root if root.is_dir() else root.parent
+    joints = Path(cfg.joints) if cfg is not None and cfg.joints else base / JOINTS_FILE
+    arm = Path(cfg.arm) if cfg is not None and cfg.arm else base / ARM_FILE
+    return joints, arm
+
+
+def load_fk_poses(root: Path, n_frames: int, joints_path: Path | None = None,
+                  arm_path: Path | None = None) -> np.ndarray:
+    """Nominal camera poses from ``joints.csv`` (measured joints) and ``arm.yaml`` (DH, base, hand-eye);
+    by default both in ``root``."""
     from seedmap.sim.arm import fk_camera_poses, read_joints_csv
 
     root = Path(root)
-    views, q = read_joints_csv(root / JOINTS_FILE)
-    arm_path = root / ARM_FILE
+    joints_path = Path(joints_path) if joints_path is not None else root / JOINTS_FILE
+    views, q = read_joints_csv(joints_path)
+    arm_path = Path(arm_path) if arm_path is not None else root / ARM_FILE
     if not arm_path.is_file():
         raise InputError("arm description not found (needed with joints.csv for FK poses)", arm_path)
     try:
@@ -58,10 +71,10 @@ def load_fk_poses(root: Path, n_frames: int) -> np.ndarray:
         # dataset has 6 frames', which names no problem)
         k = int(np.flatnonzero(views != np.arange(n_frames))[0])
         raise InputError(f"joints file rows must be views 0..{n_frames - 1} in order, one row each; line {k + 2} "
-                         f"has view {views[k]} (expected {k})", root / JOINTS_FILE)
+                         f"has view {views[k]} (expected {k})", joints_path)
     if len(q) != n_frames:
         raise InputError(f"joints file has {len(q)} rows for views {views.min()}..{views.max()}, "
-                         f"but the dataset has {n_frames} frames", root / JOINTS_FILE)
+                         f"but the dataset has {n_frames} frames", joints_path)
     try:
         return fk_camera_poses(q, arm)
     except InputError as e:
@@ -111,11 +124,12 @@ def _downsample_view(vc: ViewCloud, voxel: float) -> ViewCloud:
 def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> PreparedScan:
     """SGBM, clouds, detections and 3D seed centres of every view of an arm scan dataset."""
     from seedmap.detect import make_detector
-    from seedmap.io.seedmap_dataset import SeedmapDataset
 
     root = Path(root)
-    ds = SeedmapDataset(root)
-    T_fk = load_fk_poses(root, len(ds))
+    ds = cfg.dataset.open(root)  # seedmap layout or any format seedmap reads (rectified at load)
+    if len(ds) == 0:
+        raise InputError("dataset has no stereo pairs", root)
+    T_fk = load_fk_poses(root, len(ds), *scan_files(root, cfg))
     det = make_detector(cfg.detector, dataset=ds, overrides=list(cfg.detector_overrides))
     oracle = bool(getattr(det, "is_oracle", False))
     views: list[PreparedView | None] = []
@@ -447,6 +461,8 @@ def gt_countable_seeds(root: Path, min_area_px: int, min_views: int = 2) -> np.n
 
 def gt_metrics(rec: Reconstruction, root: Path, min_area_px: int) -> dict | None:
     """Pose, cloud and count errors against the simulator's ground truth (None without GT)."""
+    if not (Path(root) / "gt").is_dir():  # users' scans (any format) have none
+        return None
     from seedmap.eval.recon_metrics import evaluate_reconstruction
     from seedmap.sim.panicle_scan import gt_rest_poses, gt_surface_points
 
