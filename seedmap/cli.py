@@ -304,6 +304,11 @@ def train_fast_cnn_cmd(
                                             help="Box/offset loss weight of a sliver pixel = 1 + this."),
     sliver_neg_weight: float = typer.Option(0.0, "--sliver-neg-weight",
                                             help="Heatmap background weight on slivers (0 = ignored, 1 = background)."),
+    gamma_jitter: float = typer.Option(0.0, "--gamma-jitter",
+                                       help="Photometric augmentation: gamma exp(U(-g, g)) and per-channel gain "
+                                            "U(1 - g/2, 1 + g/2) per crop (0 = off)."),
+    noise_max: float = typer.Option(0.0, "--noise-max",
+                                    help="Add Gaussian noise of sd U(0, this) grey levels per crop (0 = off)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
@@ -326,7 +331,8 @@ def train_fast_cnn_cmd(
                          iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
                          box_center_weight=box_center_weight, arm_fraction=arm_fraction, lr=lr,
                          init_weights=str(init) if init else None, peak_box_radius=peak_box_radius,
-                         sliver_box_weight=sliver_box_weight, sliver_neg_weight=sliver_neg_weight)
+                         sliver_box_weight=sliver_box_weight, sliver_neg_weight=sliver_neg_weight,
+                         gamma_jitter=gamma_jitter, noise_max=noise_max)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "

@@ -248,6 +248,12 @@ class CropSpec:
     #: heatmap loss on ignored sliver pixels: weight of the background (negative) term there (0 = ignored,
     #: session 4; 1 = plain background)
     sliver_neg_weight: float = 0.0
+    #: session 9, photometric augmentation (0 = none, session 4; with augment only): every crop gets a gamma
+    #: ``exp(U(-g, g))`` and a per-channel gain ``U(1 - g/2, 1 + g/2)`` for ``gamma_jitter = g``, and Gaussian noise
+    #: of standard deviation ``U(0, noise_max)`` grey levels (the renderer's seed shading and the sensor noise
+    #: differ between renderer versions and cameras; see :func:`crop_batch`)
+    gamma_jitter: float = 0.0
+    noise_max: float = 0.0
 
 
 def _render_heat(size: int, kp: np.ndarray, sigma: np.ndarray, out: np.ndarray) -> None:
@@ -357,6 +363,14 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
                 reg[2] += 1.0
                 reg[4] = -reg[4]
                 reg *= m
+            if sp.gamma_jitter > 0:  # drawn last, none when off: the
+                # session-4 crops stay bit-identical
+                g = float(sp.gamma_jitter)
+                gain = rng.uniform(1 - g / 2, 1 + g / 2, 3).astype(np.float32)
+                rgb = np.clip(rgb ** np.float32(np.exp(rng.uniform(-g, g))) * gain, 0, 1)
+            if sp.noise_max > 0:
+                sd = rng.uniform(0, sp.noise_max) / 255.0
+                rgb = np.clip(rgb + rng.normal(0.0, sd, rgb.shape).astype(np.float32), 0, 1)
         X[k] = rgb.transpose(2, 0, 1)
         H[k] = heat
         R[k] = reg
@@ -489,6 +503,9 @@ class CnnTrainConfig:
     peak_box_radius: int = 0
     sliver_box_weight: float = 0.0
     sliver_neg_weight: float = 0.0
+    #: session 9, opt-in (CropSpec): photometric augmentation, gamma/gain jitter and added noise (grey levels)
+    gamma_jitter: float = 0.0
+    noise_max: float = 0.0
     #: start from the weights of this fast_cnn ONNX file (fine-tuning; its channels replace c1/c2) instead of a
     #: random initialisation
     init_weights: str | None = None
@@ -612,7 +629,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         tr = load_training_images(train_sets, fr_tr, 1, progress)
         va = load_training_images(train_sets, fr_va, 1, progress)
     spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi),
-                    cfg.peak_box_radius, cfg.sliver_box_weight, cfg.sliver_neg_weight)
+                    cfg.peak_box_radius, cfg.sliver_box_weight, cfg.sliver_neg_weight, cfg.gamma_jitter, cfg.noise_max)
     vrng = np.random.default_rng(cfg.seed + 1)
     w_tr, w_va = image_weights(tr, cfg.arm_fraction), image_weights(va, cfg.arm_fraction)
     vbatch = [torch.from_numpy(np.ascontiguousarray(a))
