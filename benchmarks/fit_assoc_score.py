@@ -36,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from seedmap.associate.semantic import (  # noqa: E402
     CUE_NAMES,
+    HISTORY_CUE_NAMES,
     TEMPORAL_CUE_NAMES,
     ScoreModel,
     SeedMatcher,
@@ -89,13 +90,14 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> list[di
 def fit(frames: list[dict], features: tuple[str, ...], hidden: tuple[int, ...], epochs: int, seed: int,
         lr: float = 3e-3, weight_decay: float = 1e-5, batch: int = 4096, kind: str = "stereo") -> ScoreModel:
     """Fit the network on labelled candidates (deterministic for a given ``seed``, one CPU thread).
-    ``kind``: "stereo" (columns of ``CUE_NAMES``) or "temporal" (``TEMPORAL_CUE_NAMES``, used by
-    benchmarks/fit_assoc_temporal.py)."""
+    ``kind``: "stereo" (columns of ``CUE_NAMES``), "temporal" (``TEMPORAL_CUE_NAMES``, used by
+    benchmarks/fit_assoc_temporal.py) or "stereo_history" (``CUE_NAMES + HISTORY_CUE_NAMES``,
+    benchmarks/fit_assoc_history.py)."""
     import torch
 
     torch.set_num_threads(1)
     torch.manual_seed(seed)
-    names = TEMPORAL_CUE_NAMES if kind == "temporal" else CUE_NAMES
+    names = {"temporal": TEMPORAL_CUE_NAMES, "stereo_history": CUE_NAMES + HISTORY_CUE_NAMES}.get(kind, CUE_NAMES)
     cols = [names.index(c) for c in features]
     x = np.concatenate([f["X"][:, cols] for f in frames]).astype(np.float64)
     y = np.concatenate([f["y"] for f in frames]).astype(np.float32)

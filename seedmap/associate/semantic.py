@@ -233,6 +233,26 @@ oracle: stereo precision ~0.3, temporal ~0.57). Options (the paper's method stay
   ranges it kept P but lost 0.1-0.3 pp gated R against the session-7 weights (seed 15 0.898 ->
   0.895, 25 0.880 -> 0.878), so ``stereo_score_s7.json`` stays and the refit was not shipped.
 
+* ``stereo_history=True`` (session 9, with ``stereo_prior="sgbm"``, ``prior_score="mlp"`` and
+  ``temporal_score="mlp"``; :func:`history_prior_assign`, :meth:`SeedMatcher._history`): the stereo
+  candidates of frame t are also scored with the seed's stereo pair at t-1. Order: the temporal
+  network needs only the dense disparity (not the stereo matches), so :meth:`SeedMatcher.features`
+  runs the temporal matching t-1 -> t *before* the stereo matching of t and keeps it for the
+  ``match_temporal`` call that follows (same network, same inputs); each left keypoint tracked to a
+  stereo pair of t-1 gets a predicted disparity and row offset (:func:`history_prior`: the t-1 pair's
+  plus the local median change of the tracked seeds' dense disparity), a second candidate window
+  of ``history_gate_sigma`` around that position (a seed whose SGBM disparity is the occluder's keeps
+  its disparity of t-1), and six cues (:data:`HISTORY_CUE_NAMES`: whether it has a history, the
+  disparity and row residuals from it, the NCC of the candidate's right patch with the t-1
+  partner's right patch at two sizes - the "loop-closed" check -, and how much the dense prior
+  disagrees with the history). One network of the ``mlp`` shape over the 17 + 6 cues
+  (``weights/stereo_history_s9.json``, ``kind="stereo_history"``) scores all candidates, also those
+  without a history (the first frame, seeds entering the view). Why (session-9 anatomy of the
+  ``mlp`` path on the fit ranges 3, 11, 16-21, gated true pairs): 5.4-9.4 % are lost, 1.6-3.8 %
+  outside the 10-sigma window, 3.6-6.3 % below the log-odds threshold, < 0.3 % to the margin or the
+  assignment; 1.6-3.0 % of the gated true pairs are lost although their left keypoint is tracked to
+  the right stereo pair of t-1 (the history points at the true partner for 96-100 % of those).
+
 The SLAM pipeline (``seedmap.slam.config.SlamAssociationConfig``) uses ``refine="field"`` and the
 constant-velocity prediction by default (``stereo_carry`` off, ``stereo_prior="none"``).
 """
@@ -249,7 +269,7 @@ from scipy.optimize import linear_sum_assignment
 
 from seedmap.associate.base import FULL_RES_WIDTH, FrameFeatures, GateConfig
 from seedmap.config import ConfigModel
-from seedmap.errors import SeedmapError
+from seedmap.errors import ConfigError, SeedmapError
 from seedmap.records import Matches, StereoCalib, StereoDetections, StereoFrame
 
 #: Cost given to gated-out pairs (removed after the assignment).
@@ -402,6 +422,22 @@ class SemanticConfig(ConfigModel):
     temporal_mlp_min_logit: float = 1.0
     #: ... and exceeds every competitor's sharing one of its keypoints by this much
     temporal_mlp_margin: float = Field(1.0, ge=0)
+    # session 9: stereo cues from the previous frame (see the module docstring and
+    # :func:`history_prior_assign`; needs stereo_prior="sgbm", prior_score="mlp", temporal_score="mlp")
+    #: score the stereo candidates with the previous frame's stereo pair of each tracked left keypoint
+    stereo_history: bool = False
+    #: the network's weights (written by benchmarks/fit_assoc_history.py; a file name in
+    #: seedmap/associate/weights/ or a path)
+    history_score_model: str = "stereo_history_s9.json"
+    #: extra candidate window around the position predicted from the previous frame (normalised
+    #: residual, units of prior_sigma_px)
+    history_gate_sigma: float = Field(6.0, gt=0)
+    #: a pair is kept when the network's log-odds is at least this ... (0.5 and 1.5: of the grid
+    #: {0, 0.5, 1, 1.5, 2} x {0.5, 1, 1.5} the setting with the best worst-fold gated recall among those
+    #: where every leave-one-range-out fold kept P >= 0.993; benchmarks/results/fit_assoc_history_s9.json)
+    history_min_logit: float = 0.5
+    #: ... and exceeds every competitor's sharing one of its keypoints by this much
+    history_margin: float = Field(1.5, ge=0)
 
 
 def full_res_scale(width: int) -> float:
@@ -1123,8 +1159,9 @@ class ScoreModel:
     partner from the cues named ``features`` (a subset of :data:`CUE_NAMES`), standardised with
     ``mean``/``std``. ``layers``: (weight (out, in), bias (out,)) per layer; the last layer has one
     output. Written by ``benchmarks/fit_assoc_score.py`` as JSON (:meth:`save` / :meth:`load`).
-    ``kind``: "stereo" (cues of :data:`CUE_NAMES`) or "temporal" (:data:`TEMPORAL_CUE_NAMES`,
-    session 8, ``benchmarks/fit_assoc_temporal.py``)."""
+    ``kind``: "stereo" (cues of :data:`CUE_NAMES`), "temporal" (:data:`TEMPORAL_CUE_NAMES`,
+    session 8, ``benchmarks/fit_assoc_temporal.py``) or "stereo_history" (:data:`CUE_NAMES` +
+    :data:`HISTORY_CUE_NAMES`, session 9, ``benchmarks/fit_assoc_history.py``)."""
 
     features: tuple[str, ...]
     mean: np.ndarray
@@ -1136,7 +1173,7 @@ class ScoreModel:
     @property
     def cue_names(self) -> tuple[str, ...]:
         """The column names of the cue matrices this model reads."""
-        return TEMPORAL_CUE_NAMES if self.kind == "temporal" else CUE_NAMES
+        return _CUE_NAMES_OF_KIND[self.kind]
 
     def logits(self, cues: np.ndarray) -> np.ndarray:
         """Log-odds (K,) of the candidates whose cue rows are ``cues`` (K, len(cue_names)):
@@ -1176,9 +1213,9 @@ class ScoreModel:
             d = json.loads(p.read_text())
             feats = tuple(d["features"])
             kind = str(d.get("kind", "stereo"))
-            if kind not in ("stereo", "temporal"):
+            if kind not in _CUE_NAMES_OF_KIND:
                 raise ValueError(f"unknown kind {kind!r}")
-            bad = [f for f in feats if f not in (TEMPORAL_CUE_NAMES if kind == "temporal" else CUE_NAMES)]
+            bad = [f for f in feats if f not in _CUE_NAMES_OF_KIND[kind]]
             if bad:
                 raise ValueError(f"unknown cues {bad}")
             layers = [(np.asarray(l["weight"], np.float64), np.asarray(l["bias"], np.float64)) for l in d["layers"]]
@@ -1190,6 +1227,10 @@ class ScoreModel:
 
 
 _MODELS: dict[str, ScoreModel] = {}
+
+
+def _cue_names_of_kind() -> dict[str, tuple[str, ...]]:
+    return {"stereo": CUE_NAMES, "temporal": TEMPORAL_CUE_NAMES, "stereo_history": CUE_NAMES + HISTORY_CUE_NAMES}
 
 
 def score_model(name: str, kind: str = "stereo") -> ScoreModel:
@@ -1369,6 +1410,166 @@ def mlp_temporal_assign(ka: np.ndarray, kb: np.ndarray, width: int, gates: GateC
     return assign_logits(ia, ib, t, len(ka), len(kb), cfg.temporal_mlp_min_logit, cfg.temporal_mlp_margin)
 
 
+# ----------------------------------------------------------------------------------------------
+# session 9: stereo cues from the previous frame (stereo_history=True)
+# ----------------------------------------------------------------------------------------------
+
+#: The cues :func:`history_cue_candidates` appends to :data:`CUE_NAMES`, in column order (see there).
+HISTORY_CUE_NAMES = ("has_history", "hist_u_res", "hist_v_res", "hist_ncc_right", "hist_ncc_right_large",
+                     "hist_disp_dev")
+
+
+@dataclass
+class StereoHistory:
+    """What the stereo score of frame t sees of frame t-1: its keypoints (image px), its stereo
+    matches, the temporal matches ``left(t-1) -> left(t)`` (computed *before* the stereo matching of
+    t, from the dense disparity, :class:`TemporalInputs`) and the :class:`ImageCues` of its right
+    keypoints."""
+
+    kp_left: np.ndarray
+    kp_right: np.ndarray
+    stereo: Matches
+    temporal: Matches
+    right: ImageCues
+
+
+def history_prior(kl: np.ndarray, hist: StereoHistory, disparity: np.ndarray, width: int, k: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per left keypoint of frame t (``kl``, N x 2 image px): the right keypoint of t-1 it is
+    tracked to (through the temporal match and the stereo match of t-1; -1 = none), the disparity
+    predicted from t-1 (image px; NaN = no history), the predicted row offset ``v_right - v_left``
+    (image px) and the deviation of the dense disparity from the predicted one (image px, NaN).
+
+    The predicted disparity is the t-1 pair's disparity plus the local median change of the
+    tracked seeds' dense disparity (median of ``D_t - d_{t-1}`` over the ``k`` nearest tracked
+    keypoints): the camera travels along the rows, so a seed's disparity barely changes, and the
+    local median also absorbs the dense disparity's small bias against the keypoint centres."""
+    n = len(kl)
+    prev_right = np.full(n, -1, np.int64)
+    d_hist = np.full(n, np.nan)
+    v_hist = np.full(n, np.nan)
+    dev = np.full(n, np.nan)
+    if len(hist.temporal) == 0 or len(hist.stereo) == 0 or n == 0:
+        return prev_right, d_hist, v_hist, dev
+    partner = _index_map(hist.stereo, len(hist.kp_left))
+    a_prev, a_cur = hist.temporal.idx_a, hist.temporal.idx_b
+    b_prev = partner[a_prev]
+    ok = b_prev >= 0
+    a_prev, a_cur, b_prev = a_prev[ok], a_cur[ok], b_prev[ok]
+    if len(a_cur) == 0:
+        return prev_right, d_hist, v_hist, dev
+    d_prev = hist.kp_left[a_prev, 0] - hist.kp_right[b_prev, 0]
+    v_prev = hist.kp_right[b_prev, 1] - hist.kp_left[a_prev, 1]
+    dt = np.asarray(disparity, np.float64).reshape(-1)[a_cur]
+    change = dt - d_prev
+    fin = np.isfinite(change)
+    if fin.sum() >= 3:
+        ch = field_at(kl[a_cur[fin]], change[fin, None], kl[a_cur], k)[:, 0]
+    else:
+        ch = np.zeros(len(a_cur))
+    prev_right[a_cur] = b_prev
+    d_hist[a_cur] = d_prev + ch
+    v_hist[a_cur] = v_prev
+    dev[a_cur] = dt - d_hist[a_cur]
+    return prev_right, d_hist, v_hist, dev
+
+
+def history_cue_candidates(kl: np.ndarray, kr: np.ndarray, width: int, gates: GateConfig | None,
+                           cfg: SemanticConfig, disparity: np.ndarray, cues: StereoCues, hist: StereoHistory | None,
+                           sums: tuple[np.ndarray, np.ndarray] | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stereo candidates ``(ia, ib)`` of frame t and their cue rows (columns :data:`CUE_NAMES` +
+    :data:`HISTORY_CUE_NAMES`): what :func:`history_prior_assign` scores and what
+    ``benchmarks/fit_assoc_history.py`` labels with ground truth (one code path).
+
+    Candidates: those of :func:`stereo_cue_candidates` (within ``mlp_gate_sigma`` of the dense
+    disparity prior) plus, for left keypoints with a history, the gated right keypoints within
+    ``history_gate_sigma`` (units of ``prior_sigma_px``) of the position predicted from t-1,
+    ``(u - d_hist, v + v_hist)`` (:func:`history_prior`): a seed whose dense disparity is wrong (the
+    occluder's, at a depth edge) keeps its disparity of t-1. Cues of a candidate, besides the 17 of
+    :func:`cue_features`:
+
+    * ``has_history``: 1 when its left keypoint is tracked to a stereo pair of t-1, else 0 (the
+      other history cues are then at their caps);
+    * ``hist_u_res`` / ``hist_v_res``: |disparity - d_hist| and |row offset - v_hist| (full-res px
+      / 10, capped at 4);
+    * ``hist_ncc_right`` / ``hist_ncc_right_large``: 1 - grey NCC (11 and 19 px at 1434 px) of the
+      candidate's right patch at t and the right patch of the t-1 partner (same camera, one frame
+      apart: the "loop-closed" check that the candidate is the t-1 partner seen again);
+    * ``hist_disp_dev``: |dense disparity - d_hist| of the left keypoint (full-res px / 10, capped at
+      4): how much the dense prior itself disagrees with the history (a depth edge)."""
+    g = (gates or GateConfig()).scaled(width)
+    kl = np.asarray(kl, np.float64).reshape(-1, 2)
+    kr = np.asarray(kr, np.float64).reshape(-1, 2)
+    ncol = len(CUE_NAMES) + len(HISTORY_CUE_NAMES)
+    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, ncol)))
+    if len(kl) < 3 or len(kr) == 0:
+        return empty
+    s = full_res_scale(width)
+    if sums is None:
+        sums = (neighbour_sums(kl * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk),
+                neighbour_sums(kr * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk))
+    prior = _disparity_prior(kl, disparity, cfg, s)
+    if prior is None:
+        return empty
+    pred, sig = prior
+    gate = _stereo_gate_fn(kl, kr, g, width)
+    ia, ib, _ = _prior_candidates(kl, kr, gate, pred, sig, cfg.mlp_gate_sigma)
+    n = len(kl)
+    if hist is not None:
+        prev_right, d_hist, v_hist, dev = history_prior(kl, hist, disparity, width, cfg.field_k)
+    else:
+        prev_right, d_hist, v_hist, dev = (np.full(n, -1, np.int64), np.full(n, np.nan), np.full(n, np.nan),
+                                           np.full(n, np.nan))
+    has = prev_right >= 0
+    if has.any():
+        hl = np.flatnonzero(has)
+        hsig = np.broadcast_to(np.asarray(cfg.prior_sigma_px, np.float64) / s, (len(hl), 2))
+        ja, jb, _ = _prior_candidates(kl[hl], kr, lambda a, b: gate(hl[a], b), np.c_[-d_hist[hl], v_hist[hl]], hsig,
+                                      cfg.history_gate_sigma)
+        m = len(kr)
+        key = np.unique(np.r_[ia * m + ib, hl[ja] * m + jb])
+        ia, ib = key // m, key % m
+    if len(ia) == 0:
+        return empty
+    local_pred = field_at(kl, pred, kl, cfg.field_k)
+    x = cue_features(kl, kr, ia, ib, pred, sig, local_pred, sums[0], sums[1], cues, cfg, width)
+    h = has[ia]
+    hu = np.full(len(ia), 4.0)
+    hv = np.full(len(ia), 4.0)
+    hn = np.full(len(ia), 1.0)
+    hnl = np.full(len(ia), 1.0)
+    hd = np.full(len(ia), 4.0)
+    if h.any() and hist is not None:
+        a, b = ia[h], ib[h]
+        hu[h] = np.minimum(np.abs(kl[a, 0] - kr[b, 0] - d_hist[a]) * s, 40.0) / 10.0
+        hv[h] = np.minimum(np.abs(kr[b, 1] - kl[a, 1] - v_hist[a]) * s, 40.0) / 10.0
+        _, mid, large = cue_patch_sizes(width, cfg.patch_px)
+        from seedmap.associate.disparity import patch_ncc
+
+        hn[h] = 1.0 - patch_ncc(hist.right.patches[mid], cues.right.patches[mid], prev_right[a], b)
+        hnl[h] = 1.0 - patch_ncc(hist.right.patches[large], cues.right.patches[large], prev_right[a], b)
+        hd[h] = np.minimum(np.nan_to_num(np.abs(dev[a]) * s, nan=40.0), 40.0) / 10.0
+    return ia, ib, np.c_[x, h.astype(np.float64), hu, hv, hn, hnl, hd]
+
+
+def history_prior_assign(kl: np.ndarray, kr: np.ndarray, width: int, gates: GateConfig | None, cfg: SemanticConfig,
+                         disparity: np.ndarray, cues: StereoCues, hist: StereoHistory | None,
+                         sums: tuple[np.ndarray, np.ndarray] | None = None) -> Matches:
+    """Stereo association of ``stereo_history=True`` (session 9): the candidates and cues of
+    :func:`history_cue_candidates`, the log-odds of ``history_score_model`` (a network of the
+    ``mlp`` score's shape, ``kind="stereo_history"``), one-to-one assignment and ambiguity test as
+    :func:`assign_logits` with ``history_min_logit`` / ``history_margin``. Without a history (first
+    frame of a sequence) every candidate has ``has_history`` 0; the same network scores it."""
+    kl = np.asarray(kl, np.float64).reshape(-1, 2)
+    kr = np.asarray(kr, np.float64).reshape(-1, 2)
+    ia, ib, x = history_cue_candidates(kl, kr, width, gates, cfg, disparity, cues, hist, sums)
+    if len(ia) == 0:
+        return Matches()
+    t = score_model(cfg.history_score_model, "stereo_history").logits(x)
+    return assign_logits(ia, ib, t, len(kl), len(kr), cfg.history_min_logit, cfg.history_margin)
+
+
 def _disparity_prior(kl: np.ndarray, disparity: np.ndarray, cfg: SemanticConfig,
                      s: float) -> tuple[np.ndarray, np.ndarray] | None:
     """``(pred, sig)`` (N, 2 each; image px) of a per-keypoint dense disparity (NaN = unknown):
@@ -1441,7 +1642,7 @@ def match_stereo_keypoints(
     cfg: SemanticConfig | None = None, sums: tuple[np.ndarray, np.ndarray] | None = None,
     init_field: np.ndarray | None = None, iters: int | None = None, disparity: np.ndarray | None = None,
     disparity_right: np.ndarray | None = None, appearance: tuple[np.ndarray, np.ndarray] | None = None,
-    cues: StereoCues | None = None,
+    cues: StereoCues | None = None, history: StereoHistory | None = None,
 ) -> Matches:
     """Left<->right association of one rectified stereo pair (pixels of an image ``width`` wide).
 
@@ -1458,7 +1659,8 @@ def match_stereo_keypoints(
     (:func:`seedmap.associate.disparity.patch_descriptors`); with ``prior_score="learned"`` and a
     ``disparity`` the pairs are scored by :func:`scored_prior_assign` instead of
     :func:`prior_assign`. ``cues``: with ``prior_score="mlp"`` and a ``disparity`` the pairs are
-    scored by :func:`mlp_prior_assign` (the left-right, deviation and debias options do not apply)."""
+    scored by :func:`mlp_prior_assign` (the left-right, deviation and debias options do not apply), or
+    with ``stereo_history`` by :func:`history_prior_assign` with ``history`` (None: no previous frame)."""
     cfg = cfg or SemanticConfig()
     g = (gates or GateConfig()).scaled(width)
     kl = np.asarray(kp_left, np.float64).reshape(-1, 2)
@@ -1471,6 +1673,8 @@ def match_stereo_keypoints(
     sb = neighbour_sums(fr, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk) if sums is None else sums[1]
     if disparity is not None and cfg.prior_score == "mlp" and cues is not None:
         if np.isfinite(np.asarray(disparity, np.float64)).sum() >= 3:
+            if cfg.stereo_history:
+                return history_prior_assign(kl, kr, width, gates, cfg, disparity, cues, history, (sa, sb))
             return mlp_prior_assign(kl, kr, width, gates, cfg, disparity, cues, (sa, sb))
     if disparity is not None:
         prior = _disparity_prior(kl, disparity, cfg, s)
@@ -2006,6 +2210,15 @@ class SeedMatcher:
         #: (benchmarks/fit_assoc_score.py) labels exactly what the matcher would score
         self.keep_inputs = False
         self.last_stereo_inputs: tuple[StereoDetections, np.ndarray | None, StereoCues | None] | None = None
+        #: stereo_history: the last frame's features and right-image cues, and the temporal matches
+        #: (previous features, frame index, matches) computed before the stereo matching of a frame
+        self._hist_prev: tuple[FrameFeatures, ImageCues] | None = None
+        self._early_temporal: tuple[FrameFeatures, int, Matches] | None = None
+        c = self.cfg
+        if c.stereo_history and not (c.stereo_prior == "sgbm" and c.prior_score == "mlp" and c.temporal_score == "mlp"
+                                     and c.refine == "field" and not c.stereo_carry):
+            raise ConfigError("association.stereo_history needs stereo_prior=sgbm, prior_score=mlp, "
+                              "temporal_score=mlp, refine=field and stereo_carry=false")
 
     def _cached_sums(self, kp: np.ndarray) -> np.ndarray:
         for arr, sums in self._sums:
@@ -2047,9 +2260,12 @@ class SeedMatcher:
         step = None
         if prev is None:
             both = appearance is not None and appearance[1] is not None
+            hist = self._history(det.index, kl, sums[0], disparity, cues)
+            if hist is not None:
+                timings["temporal_early"] = (time.perf_counter() - t0) * 1e3
             m = match_stereo_keypoints(kl, kr, self.calib.width, self.gates, self.cfg, sums=sums, disparity=disparity,
                                        disparity_right=disparity_right, appearance=appearance if both else None,
-                                       cues=cues)
+                                       cues=cues, history=hist)
             if self.cfg.stereo_carry:  # a new sequence: no constant-velocity prediction from the old one
                 self._last_shift = self._last_shift_v = None
         else:
@@ -2069,6 +2285,7 @@ class SeedMatcher:
             seed_ids_left=det.left.seed_ids, seed_ids_right=det.right.seed_ids, timings_ms=timings,
         )
         self._remember(f.kp_left, sums[0])
+        self._hist_prev = (f, cues.right) if (self.cfg.stereo_history and cues is not None) else None
         if appearance is not None:
             self._patches = [*self._patches[-1:], (f.kp_left, appearance[0])]
         if self.cfg.stereo_carry:
@@ -2081,6 +2298,33 @@ class SeedMatcher:
                 self._prev_flow = (kl[t.idx_b], kl[t.idx_b] - prev.kp_left[t.idx_a])
             self._loop = None if step is None else (prev, f, step)
         return f
+
+    def _history(self, index: int, kl: np.ndarray, sums_left: np.ndarray, disparity: np.ndarray | None,
+                 cues: StereoCues | None) -> StereoHistory | None:
+        """``stereo_history``: the temporal matches of the previous frame's left keypoints to ``kl``
+        (the frame ``index``), computed now, before this frame's stereo matching, by the temporal
+        network (it needs only the dense disparity, not the stereo matches; kept for the
+        ``match_temporal`` call that follows), as a :class:`StereoHistory`; None without a
+        previous frame."""
+        self._early_temporal = None
+        if not self.cfg.stereo_history or disparity is None or cues is None or self._hist_prev is None:
+            return None
+        prev, right_prev = self._hist_prev
+        ta = self._cached_temporal_inputs(prev.kp_left)
+        if index != prev.index + 1 or ta is None:
+            return None
+        pred, pred_v = self._prediction()
+        ia, ib, x = temporal_cue_candidates(prev.kp_left, kl, self.calib.width, self.gates, self.cfg, ta,
+                                            TemporalInputs(cues.left, np.asarray(disparity, np.float64)), pred, pred_v,
+                                            (self._cached_sums(prev.kp_left), sums_left))
+        tm = self._temporal_assign(ia, ib, x, len(prev.kp_left), len(kl))
+        self._early_temporal = (prev, index, tm)
+        return StereoHistory(prev.kp_left, prev.kp_right, prev.stereo, tm, right_prev)
+
+    def _temporal_assign(self, ia: np.ndarray, ib: np.ndarray, x: np.ndarray, n: int, m: int) -> Matches:
+        """The temporal network's matches among the candidates ``(ia, ib)`` with cue rows ``x``."""
+        t = score_model(self.cfg.temporal_score_model, "temporal").logits(x) if len(ia) else np.zeros(0)
+        return assign_logits(ia, ib, t, n, m, self.cfg.temporal_mlp_min_logit, self.cfg.temporal_mlp_margin)
 
     def features(self, frame: StereoFrame) -> FrameFeatures:
         if self.detector is None:
@@ -2229,13 +2473,16 @@ class SeedMatcher:
             return self._loop[2].temporal  # computed with cur's stereo by the loop
         pred, pred_v = self._prediction()
         sums = (self._cached_sums(prev.kp_left), self._cached_sums(cur.kp_left))
-        cand = self.temporal_candidates(prev, cur) if (self.cfg.temporal_score == "mlp"
-                                                       and self.cfg.refine == "field") else None
-        if cand is not None:
-            ia, ib, x = cand
-            t = score_model(self.cfg.temporal_score_model, "temporal").logits(x) if len(ia) else np.zeros(0)
-            m = assign_logits(ia, ib, t, len(prev.kp_left), len(cur.kp_left), self.cfg.temporal_mlp_min_logit,
-                              self.cfg.temporal_mlp_margin)
+        early = self._early_temporal
+        cand = None
+        if early is None or early[0] is not prev or early[1] != cur.index:
+            early = None
+            cand = self.temporal_candidates(prev, cur) if (self.cfg.temporal_score == "mlp"
+                                                           and self.cfg.refine == "field") else None
+        if early is not None:  # stereo_history: computed before cur's stereo matching (same network)
+            m = early[2]
+        elif cand is not None:
+            m = self._temporal_assign(*cand, len(prev.kp_left), len(cur.kp_left))
         else:
             m = match_temporal_keypoints(prev.kp_left, cur.kp_left, self.calib.width, self.gates, self.cfg, pred,
                                          pred_v, sums=sums)
@@ -2262,3 +2509,9 @@ class SeedMatcher:
         self._disp_known = None
         self._patches = []
         self._temporal_inputs = []
+        self._hist_prev = None
+        self._early_temporal = None
+
+
+#: cue columns of each :class:`ScoreModel` kind
+_CUE_NAMES_OF_KIND: dict[str, tuple[str, ...]] = _cue_names_of_kind()
