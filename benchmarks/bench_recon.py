@@ -53,6 +53,24 @@ that freeze and run once (``--eval 100 180 ... 189 --detectors gt fast --modes s
 s8fresh6``); ``..._fast_s7b_fresh6.json`` = the session-7b profile on them for comparison (``--recount --tag
 s7bfresh6 --count-set detector_profile=false`` plus that profile's eight keys). ``..._fast_s8_ft1_tuning.json``: the arm network fine-tuned with ``--peak-box-radius 1`` (not adopted),
 ``--detector-set cnn.weights=data/cnn_s8/ft_pbr1/fast_cnn.onnx --tag s8ft1`` under the session-7b profile.
+Session 9 (issue #6, detector side; the count profile unchanged): the over-count is a property of the RED variety with
+large seeds (never-tuned panicles with seeds >= 4.4 mm: red +10.2 % signed, brown -1.6, tan -5.7, white +2.2), and
+the tuning set 95-99 + 111-115 holds no red panicle (6 brown, 3 white, 1 tan) and the arm training scans 130-139 one
+large red one; extra TUNING-only red panicles 310-315 (``seedmap simulate panicle --config
+data/recon_s7/p96/gt/scan.yaml --seed N --views 24 --set 'sim.panicle.seed_colors=[red]' --out
+data/arm_train_s9/pN``; ``p100`` linked in) are run with ``--data-dir data/arm_train_s9``. Candidates (arm network
+fine-tuned with ``seedmap train fast-cnn ... --init fast_cnn_arm.onnx --lr 5e-4 --steps 2000``, extra scans of
+large-seeded dark panicles): ``..._fast_s9_{ft1,ft1t35,ft2}_{tuning,red}.json`` and ``..._fast_s9_shipped_red.json``
+(``--detector-set cnn.weights=W [cnn.threshold=0.35] --tag s9NAMEtune / s9NAMEred``). The frozen ``ft2`` =
+``seedmap/detect/weights/fast_cnn_arm_s9.onnx`` (opt-in, ``--set cnn.weights=fast_cnn_arm_s9.onnx``), run once:
+``..._fast_s9_arm_never.json`` (``--eval 100 101 ... 110 116 ... 125 150 ... 189 --detectors fast --modes seeds
+--data-dir data/recon_s7 --detector-set cnn.weights=fast_cnn_arm_s9.onnx --tag s9armnever``),
+``..._fast_s9_arm_fresh7.json`` (same on 190-199, tag ``s9armfresh7``), ``..._{gt,fast}_s9_fresh7.json`` (panicles
+190-199 rendered after the freeze, ``--eval 100 190 ... 199 --detectors gt fast --modes seeds --data-dir
+data/recon_s7 --tag s9fresh7``), ``..._fast_s9_sets.json`` (per set and panicle, shipped network from the session-8
+runs vs the s9 network). The s9 network halves the red over-count (+10.2 -> +4.0 % on the six large-seeded red
+panicles) but lowers every count by about 1-2 points, so it is not the default (70 panicles 6.03 -> 5.86 %; 101-110
+4.33 -> 5.49 %).
 """
 
 from __future__ import annotations
