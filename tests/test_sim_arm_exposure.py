@@ -87,3 +87,25 @@ def test_cli_bad_exposure_fails_with_one_line(tmp_path):
     assert r.returncode == 2, r.stderr
     assert "exposure" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_partial_sim_override_keeps_arm_scan_defaults(tmp_path):
+    """`--set sim.panicle.X=...` (or a YAML with a partial sim: section) once rebuilt SimConfig from its field
+    defaults: full-resolution field camera and simulator wind on an arm scan. The scan defaults now stay."""
+    from seedmap.config import config_to_yaml, load_config
+
+    default = PanicleScanConfig()
+    cfg = load_config(PanicleScanConfig, None, ["sim.panicle.seeds_min=300", "sim.panicle.seeds_max=400"])
+    assert cfg.sim.panicle.seeds_min == 300
+    assert cfg.sim.camera.scale == default.sim.camera.scale == 0.25
+    assert cfg.sim.wind.enabled is False
+    assert cfg.sim.camera == default.sim.camera and cfg.sim.wind == default.sim.wind
+    # an explicit value still wins, and a dumped config reloads to itself
+    cfg2 = load_config(PanicleScanConfig, None, ["sim.camera.scale=0.5", "sim.wind.enabled=true"])
+    assert cfg2.sim.camera.scale == 0.5 and cfg2.sim.wind.enabled is True
+    p = tmp_path / "scan.yaml"
+    p.write_text(config_to_yaml(cfg2))
+    assert load_config(PanicleScanConfig, p) == cfg2
+    part = tmp_path / "part.yaml"
+    part.write_text("sim:\n  panicle:\n    seeds_min: 300\n")
+    assert load_config(PanicleScanConfig, part).sim.camera.scale == 0.25

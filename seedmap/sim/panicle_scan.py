@@ -44,6 +44,12 @@ from seedmap.sim.arm import ArmConfig, arm_yaml_dict, simulate_capture, write_jo
 from seedmap.sim.config import CameraConfig, SimConfig, WindConfig
 
 
+#: the arm scan's departures from the field simulator's defaults: a quarter-resolution camera and no
+#: simulator wind (sway is the scan's own). A partial ``sim:`` section (YAML or ``--set sim.X=...``) is
+#: merged over these, so overriding one key never brings back the field camera or the wind.
+SCAN_SIM_DEFAULTS: dict = {"camera": {"scale": 0.25}, "wind": {"enabled": False}}
+
+
 def _default_sim() -> SimConfig:
     return SimConfig(camera=CameraConfig(scale=0.25), wind=WindConfig(enabled=False))
 
@@ -58,6 +64,15 @@ class PanicleScanConfig(ConfigModel):
     exposure: Union[Literal["auto"], float] = Field(
         "auto", description='"auto": gain x (scan distance / 0.7 m)^2 so seeds facing the camera are exposed as '
         "in the field; a number > 0 multiplies sim.imaging.exposure (1.0 = the flash-saturated renders of sessions 1-6)")
+
+    @field_validator("sim", mode="before")
+    @classmethod
+    def _scan_sim_defaults(cls, v):  # noqa: ANN001, ANN206 - pydantic validator
+        if isinstance(v, dict):
+            from seedmap.config import _deep_merge
+
+            return _deep_merge(SCAN_SIM_DEFAULTS, v)
+        return v
 
     @field_validator("exposure")
     @classmethod
