@@ -21,6 +21,7 @@ from seedmap.associate.semantic import (
     history_prior_assign,
     image_cues,
     score_model,
+    stereo_cue_candidates,
 )
 from seedmap.errors import ConfigError, SeedmapError
 from seedmap.records import Matches, StereoCalib
@@ -94,6 +95,27 @@ def test_history_window_and_cues_recover_a_seed_whose_dense_disparity_is_wrong()
     # without a history the candidates are those of the dense prior and the history cues sit at their caps
     ja, jb, x0 = history_cue_candidates(kl, kr, W, GateConfig(), cfg, disp, cues, None)
     assert (x0[:, len(CUE_NAMES)] == 0).all() and not set(ja[ja == jb]) & set(inside)
+
+
+def test_without_a_history_the_candidates_and_cues_are_those_of_the_mlp_stereo_score():
+    """The two learned stereo scores share one setup (dense-prior candidates, 17 cues): without a
+    history the stereo_history candidates are the session-7 ones bit for bit, the history cues at
+    their caps."""
+    kl, kr, cues, _ = _scene(4)
+    disp = np.full(len(kl), D0)
+    disp[::6] = np.nan  # unknown disparities take their neighbours' (wider spread)
+    disp[1::9] = D0 + 9.0
+    cfg = _cfg()
+    ia, ib, x = stereo_cue_candidates(kl, kr, W, GateConfig(), cfg, disp, cues)
+    ja, jb, y = history_cue_candidates(kl, kr, W, GateConfig(), cfg, disp, cues, None)
+    assert len(ia) > len(kl) and np.array_equal(ia, ja) and np.array_equal(ib, jb)
+    nc = len(CUE_NAMES)
+    assert np.array_equal(x, y[:, :nc])
+    assert np.array_equal(y[:, nc:], np.tile([0.0, 4.0, 4.0, 1.0, 1.0, 4.0], (len(ja), 1)))
+    none = np.full(len(kl), np.nan)  # too few known disparities: neither scores anything
+    assert stereo_cue_candidates(kl, kr, W, GateConfig(), cfg, none, cues)[2].shape == (0, nc)
+    assert history_cue_candidates(kl, kr, W, GateConfig(), cfg, none, cues, None)[2].shape == (
+        0, nc + len(HISTORY_CUE_NAMES))
 
 
 def test_shipped_history_model_ranks_the_true_partner_first_where_the_dense_prior_is_wrong():

@@ -276,6 +276,7 @@ constant-velocity prediction by default (``stereo_carry`` off, ``stereo_prior="n
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -757,13 +758,18 @@ def assign_capped(n: int, m: int, ia: np.ndarray, ib: np.ndarray, cost: np.ndarr
     _, col = min_weight_full_bipartite_matching(g)
     a = np.flatnonzero(col[:n] < m)
     b = col[a]
-    c = np.full(len(a), np.nan)
     # cost of each kept pair (look-up in the candidate list)
+    c = cost[candidate_positions(ia, ib, m, a, b)]
+    return Matches(a.astype(np.int64), b.astype(np.int64), c)
+
+
+def candidate_positions(ia: np.ndarray, ib: np.ndarray, m: int, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+    """Positions in the candidate list ``(ia, ib)`` of the pairs ``(qa, qb)``, every one of which is
+    a candidate (e.g. the pairs an assignment kept); ``m`` = number of keypoints of B. One sort of
+    the pair keys ``ia * m + ib`` and a binary search, no dict of pairs."""
     key = ia * m + ib
     order = np.argsort(key)
-    pos = order[np.searchsorted(key[order], a * m + b)]
-    c = cost[pos]
-    return Matches(a.astype(np.int64), b.astype(np.int64), c)
+    return order[np.searchsorted(key[order], qa * m + qb)]
 
 
 def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray, cell: float, bin_px: float,
@@ -1024,9 +1030,7 @@ def assign_logits(ia: np.ndarray, ib: np.ndarray, t: np.ndarray, n: int, m: int,
     out = assign_capped(n, m, ia, ib, cost, top - min_logit + 1e-9)
     if len(out) == 0:
         return out
-    key = ia * m + ib
-    order = np.argsort(key)
-    pos = order[np.searchsorted(key[order], out.idx_a * m + out.idx_b)]
+    pos = candidate_positions(ia, ib, m, out.idx_a, out.idx_b)
     alt = second_best(ia, ib, cost, out, n, m)
     keep = cost[pos] + margin < alt
     return Matches(out.idx_a[keep], out.idx_b[keep], out.cost[keep])
@@ -1267,25 +1271,82 @@ def stereo_cue_candidates(kl: np.ndarray, kr: np.ndarray, width: int, gates: Gat
     """Candidates ``(ia, ib)`` of the dense-disparity prior within ``mlp_gate_sigma`` and their
     :func:`cue_features` rows: what :func:`mlp_prior_assign` scores, and what
     ``benchmarks/fit_assoc_score.py`` labels with ground truth to fit the network (one code path)."""
-    g = (gates or GateConfig()).scaled(width)
-    kl = np.asarray(kl, np.float64).reshape(-1, 2)
-    kr = np.asarray(kr, np.float64).reshape(-1, 2)
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(CUE_NAMES))))
+    c = _dense_prior_candidates(kl, kr, width, gates, cfg, disparity, sums)
+    if c is None or len(c.ia) == 0:
+        return _no_candidates(len(CUE_NAMES))
+    return c.ia, c.ib, c.cue_rows(c.ia, c.ib, cues, cfg, width)
+
+
+@dataclass
+class _DensePriorCandidates:
+    """Where both learned stereo scores start (:func:`stereo_cue_candidates`,
+    :func:`history_cue_candidates`): the keypoints (N x 2, M x 2; image px, float64), the full-res
+    scale ``s``, their neighbour sums (full-res), the dense-disparity prior ``pred`` / ``sig`` (N x 2
+    each, image px; :func:`_disparity_prior`), the stereo gate and the gated candidates ``(ia, ib)``
+    within ``mlp_gate_sigma`` of the prior."""
+
+    kl: np.ndarray
+    kr: np.ndarray
+    s: float
+    sums: tuple[np.ndarray, np.ndarray]
+    pred: np.ndarray
+    sig: np.ndarray
+    gate: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    ia: np.ndarray
+    ib: np.ndarray
+
+    def cue_rows(self, ia: np.ndarray, ib: np.ndarray, cues: StereoCues, cfg: SemanticConfig,
+                 width: int) -> np.ndarray:
+        """:func:`cue_features` rows of the candidates ``(ia, ib)`` (the neighbours' prediction is
+        the prior's median over the ``field_k`` nearest left keypoints)."""
+        local_pred = field_at(self.kl, self.pred, self.kl, cfg.field_k)
+        return cue_features(self.kl, self.kr, ia, ib, self.pred, self.sig, local_pred, self.sums[0], self.sums[1],
+                            cues, cfg, width)
+
+
+def _dense_prior_candidates(kl: np.ndarray, kr: np.ndarray, width: int, gates: GateConfig | None,
+                            cfg: SemanticConfig, disparity: np.ndarray,
+                            sums: tuple[np.ndarray, np.ndarray] | None) -> _DensePriorCandidates | None:
+    """The setup shared by the learned stereo scores (:class:`_DensePriorCandidates`); None when
+    nothing can be scored (fewer than 3 left keypoints, no right keypoint, fewer than 3 known
+    disparities). ``sums``: precomputed full-res neighbour sums of (left, right), else computed."""
+    cfg, g, kl, kr, s = _pair_inputs(kl, kr, width, gates, cfg)
     if len(kl) < 3 or len(kr) == 0:
-        return empty
-    s = full_res_scale(width)
-    if sums is None:
-        sums = (neighbour_sums(kl * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk),
-                neighbour_sums(kr * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk))
+        return None
+    sums = _full_res_sums(kl, kr, s, cfg, sums)
     prior = _disparity_prior(kl, disparity, cfg, s)
     if prior is None:
-        return empty
+        return None
     pred, sig = prior
-    ia, ib, _ = _prior_candidates(kl, kr, _stereo_gate_fn(kl, kr, g, width), pred, sig, cfg.mlp_gate_sigma)
-    if len(ia) == 0:
-        return empty
-    local_pred = field_at(kl, pred, kl, cfg.field_k)
-    return ia, ib, cue_features(kl, kr, ia, ib, pred, sig, local_pred, sums[0], sums[1], cues, cfg, width)
+    gate = _stereo_gate_fn(kl, kr, g, width)
+    ia, ib, _ = _prior_candidates(kl, kr, gate, pred, sig, cfg.mlp_gate_sigma)
+    return _DensePriorCandidates(kl, kr, s, sums, pred, sig, gate, ia, ib)
+
+
+def _pair_inputs(kp_a: np.ndarray, kp_b: np.ndarray, width: int, gates: GateConfig | None,
+                 cfg: SemanticConfig | None) -> tuple[SemanticConfig, GateConfig, np.ndarray, np.ndarray, float]:
+    """What every association of two keypoint sets starts from: ``cfg`` (default
+    :class:`SemanticConfig`), the gates scaled to the image ``width`` (default :class:`GateConfig`),
+    both keypoint sets as (N, 2) float64 image px and :func:`full_res_scale` of the width."""
+    g = (gates or GateConfig()).scaled(width)
+    ka = np.asarray(kp_a, np.float64).reshape(-1, 2)
+    kb = np.asarray(kp_b, np.float64).reshape(-1, 2)
+    return cfg or SemanticConfig(), g, ka, kb, full_res_scale(width)
+
+
+def _full_res_sums(ka: np.ndarray, kb: np.ndarray, s: float, cfg: SemanticConfig,
+                   sums: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``sums`` when given (a cache), else the :func:`neighbour_sums` of ``ka`` and ``kb`` (image px)
+    in full-resolution units (``s`` = :func:`full_res_scale`), with every keypoint a neighbour."""
+    if sums is not None:
+        return sums
+    return (neighbour_sums(ka * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk),
+            neighbour_sums(kb * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk))
+
+
+def _no_candidates(ncol: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The empty ``(ia, ib, cue rows)`` of the cue-candidate functions (``ncol`` cue columns)."""
+    return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, ncol))
 
 
 def mlp_prior_assign(kl: np.ndarray, kr: np.ndarray, width: int, gates: GateConfig | None, cfg: SemanticConfig,
@@ -1372,16 +1433,11 @@ def temporal_cue_candidates(ka: np.ndarray, kb: np.ndarray, width: int, gates: G
     frames' left images. Why: the ``field`` path keeps a pair only when its residual is the best by
     a ratio (``field_ratio``) inside 3.5 sigma; seeds at a depth edge or with a moved centre fail
     that test although their appearance and depth identify them."""
-    g = (gates or GateConfig()).scaled(width)
-    ka = np.asarray(ka, np.float64).reshape(-1, 2)
-    kb = np.asarray(kb, np.float64).reshape(-1, 2)
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, len(TEMPORAL_CUE_NAMES))))
+    cfg, g, ka, kb, s = _pair_inputs(ka, kb, width, gates, cfg)
+    empty = _no_candidates(len(TEMPORAL_CUE_NAMES))
     if len(ka) < 3 or len(kb) < 3:
         return empty
-    s = full_res_scale(width)
-    if sums is None:
-        sums = (neighbour_sums(ka * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk),
-                neighbour_sums(kb * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk))
+    sums = _full_res_sums(ka, kb, s, cfg, sums)
     gate, lo, hi, extent = _temporal_search(ka, kb, width, g, cfg, predicted_shift, predicted_shift_v)
     sigma = np.asarray(cfg.field_temporal_sigma_px, np.float64) / s
     pred = field_estimate(ka, kb, gate, lo, hi, sigma, cfg, s, extent)
@@ -1514,23 +1570,11 @@ def history_cue_candidates(kl: np.ndarray, kr: np.ndarray, width: int, gates: Ga
       apart: the "loop-closed" check that the candidate is the t-1 partner seen again);
     * ``hist_disp_dev``: |dense disparity - d_hist| of the left keypoint (full-res px / 10, capped at
       4): how much the dense prior itself disagrees with the history (a depth edge)."""
-    g = (gates or GateConfig()).scaled(width)
-    kl = np.asarray(kl, np.float64).reshape(-1, 2)
-    kr = np.asarray(kr, np.float64).reshape(-1, 2)
-    ncol = len(CUE_NAMES) + len(HISTORY_CUE_NAMES)
-    empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, ncol)))
-    if len(kl) < 3 or len(kr) == 0:
+    empty = _no_candidates(len(CUE_NAMES) + len(HISTORY_CUE_NAMES))
+    c = _dense_prior_candidates(kl, kr, width, gates, cfg, disparity, sums)
+    if c is None:
         return empty
-    s = full_res_scale(width)
-    if sums is None:
-        sums = (neighbour_sums(kl * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk),
-                neighbour_sums(kr * s, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk))
-    prior = _disparity_prior(kl, disparity, cfg, s)
-    if prior is None:
-        return empty
-    pred, sig = prior
-    gate = _stereo_gate_fn(kl, kr, g, width)
-    ia, ib, _ = _prior_candidates(kl, kr, gate, pred, sig, cfg.mlp_gate_sigma)
+    kl, kr, s, gate, ia, ib = c.kl, c.kr, c.s, c.gate, c.ia, c.ib
     n = len(kl)
     if hist is not None:
         prev_right, d_hist, v_hist, dev = history_prior(kl, hist, disparity, width, cfg.field_k)
@@ -1548,8 +1592,7 @@ def history_cue_candidates(kl: np.ndarray, kr: np.ndarray, width: int, gates: Ga
         ia, ib = key // m, key % m
     if len(ia) == 0:
         return empty
-    local_pred = field_at(kl, pred, kl, cfg.field_k)
-    x = cue_features(kl, kr, ia, ib, pred, sig, local_pred, sums[0], sums[1], cues, cfg, width)
+    x = c.cue_rows(ia, ib, cues, cfg, width)
     h = has[ia]
     hu = np.full(len(ia), 4.0)
     hv = np.full(len(ia), 4.0)
@@ -1636,9 +1679,7 @@ def _ratio_test(out: Matches, ia: np.ndarray, ib: np.ndarray, resid: np.ndarray,
     keypoints (``resid_pair < ratio * resid_competitor``)."""
     if len(out) == 0 or ratio >= 1.0:
         return out
-    key = ia * m + ib
-    order = np.argsort(key)
-    pos = order[np.searchsorted(key[order], out.idx_a * m + out.idx_b)]
+    pos = candidate_positions(ia, ib, m, out.idx_a, out.idx_b)
     alt = second_best(ia, ib, resid, out, n, m)
     keep = resid[pos] < ratio * alt
     return Matches(out.idx_a[keep], out.idx_b[keep], out.cost[keep])
@@ -1677,16 +1718,11 @@ def match_stereo_keypoints(
     :func:`prior_assign`. ``cues``: with ``prior_score="mlp"`` and a ``disparity`` the pairs are
     scored by :func:`mlp_prior_assign` (the left-right, deviation and debias options do not apply), or
     with ``stereo_history`` by :func:`history_prior_assign` with ``history`` (None: no previous frame)."""
-    cfg = cfg or SemanticConfig()
-    g = (gates or GateConfig()).scaled(width)
-    kl = np.asarray(kp_left, np.float64).reshape(-1, 2)
-    kr = np.asarray(kp_right, np.float64).reshape(-1, 2)
+    cfg, g, kl, kr, s = _pair_inputs(kp_left, kp_right, width, gates, cfg)
     if len(kl) == 0 or len(kr) == 0:
         return Matches()
-    s = full_res_scale(width)
     fl, fr = kl * s, kr * s
-    sa = neighbour_sums(fl, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk) if sums is None else sums[0]
-    sb = neighbour_sums(fr, cfg.delta_px, cfg.eps_px, chunk=cfg.chunk) if sums is None else sums[1]
+    sa, sb = _full_res_sums(kl, kr, s, cfg, sums)
     if disparity is not None and cfg.prior_score == "mlp" and cues is not None:
         if np.isfinite(np.asarray(disparity, np.float64)).sum() >= 3:
             if cfg.stereo_history:
@@ -1715,11 +1751,7 @@ def match_stereo_keypoints(
                 m = Matches(m.idx_a[keep], m.idx_b[keep], m.cost[keep])
             return m
     if cfg.refine == "field":
-        def gate(ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
-            return (((kl[ia, 0] - kr[ib, 0]) >= g.stereo_min_disparity_px)
-                    & (np.abs(kl[ia, 1] - kr[ib, 1]) <= g.stereo_max_dy_px)
-                    & _inside(kl[ia, 0], width, g.stereo_border_px) & _inside(kr[ib, 0], width, g.stereo_border_px))
-
+        gate = _stereo_gate_fn(kl, kr, g, width)
         band = cfg.field_stereo_band_px / s
         lo = np.array([-cfg.field_max_disparity_px / s, -band])
         hi = np.array([-g.stereo_min_disparity_px, band])
@@ -1774,13 +1806,9 @@ def match_temporal_keypoints(
     used only with ``neighbours="all"``. ``init_field``/``iters``: ``refine="field"`` only, see
     :func:`field_assign`.
     """
-    cfg = cfg or SemanticConfig()
-    g = (gates or GateConfig()).scaled(width)
-    ka = np.asarray(kp_prev, np.float64).reshape(-1, 2)
-    kb = np.asarray(kp_cur, np.float64).reshape(-1, 2)
+    cfg, g, ka, kb, s = _pair_inputs(kp_prev, kp_cur, width, gates, cfg)
     if len(ka) == 0 or len(kb) == 0:
         return Matches()
-    s = full_res_scale(width)
     fa, fb = ka * s, kb * s
     va = vb = None
     if cfg.neighbours == "overlap" and predicted_shift is not None:
@@ -1988,18 +2016,12 @@ def loop_associate(
     test of every stereo pair whose left keypoint has a track, and the loop check of the temporal
     matches.
     """
-    cfg = cfg or SemanticConfig()
-    g = (gates or GateConfig()).scaled(width)
-    kl = np.asarray(kl, np.float64).reshape(-1, 2)
-    kr = np.asarray(kr, np.float64).reshape(-1, 2)
+    cfg, g, kl, kr, s = _pair_inputs(kl, kr, width, gates, cfg)
     pl = np.asarray(prev_left, np.float64).reshape(-1, 2)
     pr = np.asarray(prev_right, np.float64).reshape(-1, 2)
-    s = full_res_scale(width)
     K = max(1, cfg.parallax_frames)
-    if sums_cur is None:
-        sums_cur = (neighbour_sums(kl * s, cfg.delta_px, cfg.eps_px), neighbour_sums(kr * s, cfg.delta_px, cfg.eps_px))
-    if sums_prev is None:
-        sums_prev = (neighbour_sums(pl * s, cfg.delta_px, cfg.eps_px), neighbour_sums(pr * s, cfg.delta_px, cfg.eps_px))
+    sums_cur = _full_res_sums(kl, kr, s, cfg, sums_cur)
+    sums_prev = _full_res_sums(pl, pr, s, cfg, sums_prev)
     if prev_track is None:
         prev_track = np.full((len(pl), K, 2), np.nan)
     # 1. temporal matching of both images, independently (so the loop is a real check)
@@ -2269,8 +2291,7 @@ class SeedMatcher:
         kl = np.asarray(det.left.keypoints, np.float64).reshape(-1, 2)
         kr = np.asarray(det.right.keypoints, np.float64).reshape(-1, 2)
         s = full_res_scale(self.calib.width)
-        sums = (neighbour_sums(kl * s, self.cfg.delta_px, self.cfg.eps_px),
-                neighbour_sums(kr * s, self.cfg.delta_px, self.cfg.eps_px))
+        sums = _full_res_sums(kl, kr, s, self.cfg)
         prev = self._carry_from(det.index)
         timings: dict[str, float] = {}
         step = None
