@@ -37,7 +37,6 @@ Never fit on the evaluation ranges (seeds 13, 14, 15, 25, 26, 27, 28).
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -48,14 +47,23 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from fit_assoc_score import fit, fit_arg_parser, score  # noqa: E402
+from fit_assoc_score import (  # noqa: E402
+    fit_and_report,
+    fit_arg_parser,
+    gated_true_pairs,
+    gt_matcher,
+    leave_one_out,
+    load_cache,
+    same_seed,
+    save_cache,
+)
 
 from seedmap.associate.semantic import (  # noqa: E402
     CUE_NAMES,
     HISTORY_CUE_NAMES,
-    SeedMatcher,
     StereoHistory,
     assign_capped,
+    candidate_positions,
     history_cue_candidates,
     history_prior,
     score_model,
@@ -78,9 +86,7 @@ def _mlp_anatomy(ia, ib, x, y, n: int, m: int, gated: int, cfg) -> dict:
     top = float(max(t.max(), ml)) + 1.0 if len(t) else ml + 1.0
     cost = top - t
     out = assign_capped(n, m, ia, ib, cost, top - ml + 1e-9)
-    key = ia * m + ib
-    order = np.argsort(key)
-    pos = order[np.searchsorted(key[order], out.idx_a * m + out.idx_b)] if len(out) else np.zeros(0, np.int64)
+    pos = candidate_positions(ia, ib, m, out.idx_a, out.idx_b) if len(out) else np.zeros(0, np.int64)
     alt = second_best(ia, ib, cost, out, n, m)
     keep = cost[pos] + mg < alt
     ok = np.zeros(len(ia), bool)
@@ -96,22 +102,13 @@ def _mlp_anatomy(ia, ib, x, y, n: int, m: int, gated: int, cfg) -> dict:
 def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[list[dict], dict]:
     """Labelled history candidates of every frame of ``dataset`` (dicts ``ia, ib, X, y, n, m,
     gated``) and the anatomy of the session-7 path (summed over frames)."""
-    if cache is not None:
-        f = cache / f"history_{dataset.name}.npz"
-        if f.is_file():
-            z = np.load(f, allow_pickle=True)
-            return list(z["frames"]), json.loads(str(z["anatomy"]))
-    from seedmap.config import load_config
+    cached = load_cache(cache, f"history_{dataset.name}.npz")
+    if cached is not None:
+        return cached
     from seedmap.eval.associate_metrics import stereo_gate
-    from seedmap.io import open_dataset
-    from seedmap.slam.config import SlamConfig
-    from seedmap.slam.pipeline import _detector_for
 
-    cfg = load_config(SlamConfig, None, ["association.stereo_prior=sgbm", "association.prior_score=mlp",
-                                         "association.temporal_score=mlp"])
-    ds = open_dataset(dataset)
-    det = _detector_for("gt", dataset, cfg.detect)
-    matcher = SeedMatcher(ds.calib, detector=det, cfg=cfg.association, gates=cfg.gates)
+    cfg, ds, matcher = gt_matcher(dataset, ["association.stereo_prior=sgbm", "association.prior_score=mlp",
+                                            "association.temporal_score=mlp"])
     matcher.keep_inputs = True
     sg = stereo_gate(ds.calib.width, cfg.gates)
     w = ds.calib.width
@@ -131,20 +128,17 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[l
         if disp is None or cues is None:
             continue
         idl, idr = f.seed_ids_left, f.seed_ids_right
-        common, pa, pb = np.intersect1d(idl[idl >= 0], idr[idr >= 0], return_indices=True)
-        pa, pb = np.flatnonzero(idl >= 0)[pa], np.flatnonzero(idr >= 0)[pb]
-        ok = sg(f.kp_left[pa], f.kp_right[pb]) if len(common) else np.zeros(0, bool)
-        gated = int(ok.sum())
+        ta, tb = gated_true_pairs(idl, idr, f.kp_left, f.kp_right, sg)
+        gated = len(ta)
         # anatomy of the session-7 path on its own candidates
         ja, jb, x7 = stereo_cue_candidates(f.kp_left, f.kp_right, w, cfg.gates, acfg, disp, cues)
-        y7 = (idl[ja] == idr[jb]) & (idl[ja] >= 0)
+        y7 = same_seed(idl, idr, ja, jb)
         an = _mlp_anatomy(ja, jb, x7, y7, len(f.kp_left), len(f.kp_right), gated, acfg)
-        ta, tb = pa[ok], pb[ok]
         mr = len(f.kp_right)
         matched = set((f.stereo.idx_a.astype(np.int64) * mr + f.stereo.idx_b).tolist())
         lost = np.array([k not in matched for k in (ta * mr + tb).tolist()], bool)
         ia, ib, x = history_cue_candidates(f.kp_left, f.kp_right, w, cfg.gates, acfg, disp, cues, hist)
-        y = (idl[ia] == idr[ib]) & (idl[ia] >= 0)
+        y = same_seed(idl, idr, ia, ib)
         if hist is not None:
             pr = history_prior(f.kp_left, hist, disp, w, acfg.field_k)[0][ta[lost]]
             has = pr >= 0
@@ -160,10 +154,7 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[l
         if progress:
             print(f"  {dataset.name} frame {i}: {len(ia)} candidates, {int(y.sum())} true, {gated} gated true pairs",
                   flush=True)
-    if cache is not None:
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(cache / f"history_{dataset.name}.npz", frames=np.array(out, dtype=object),
-                            anatomy=json.dumps(anatomy))
+    save_cache(cache, f"history_{dataset.name}.npz", out, anatomy)
     return out, anatomy
 
 
@@ -195,7 +186,7 @@ def main(argv: list[str] | None = None) -> None:
         g = max(an["gated"], 1)
         print(f"{r.name} mlp-path anatomy (gated true pairs): " + ", ".join(f"{k} {an[k]} ({an[k] / g:.4f})"
                                                                            for k in an), flush=True)
-    grid = [(t, mg) for t in (0.0, 0.5, 1.0, 1.5, 2.0) for mg in (0.5, 1.0, 1.5)]
+    settings = {f"{t}/{mg}": (t, mg) for t in (0.0, 0.5, 1.0, 1.5, 2.0) for mg in (0.5, 1.0, 1.5)}
     report: dict = {"ranges": [str(r) for r in a.ranges], "features": list(feats), "hidden": list(hidden),
                     "epochs": a.epochs, "seed": a.seed, "min_precision": a.min_precision, "mlp_anatomy": anatomy}
     variants = {"history": feats}
@@ -204,11 +195,9 @@ def main(argv: list[str] | None = None) -> None:
     if a.cv and len(data) > 1:
         for name, fs in variants.items():
             cv = {}
-            for held in data:
-                train = [f for n, fr in data.items() if n != held for f in fr]
-                mdl = fit(train, fs, hidden, a.epochs, a.seed, kind="stereo_history")
-                cv[held] = {f"{t}/{mg}": score(data[held], mdl, t, mg) for t, mg in grid}
-                v = cv[held]["1.0/1.0"]
+            for held, row in leave_one_out(data, fs, hidden, a.epochs, a.seed, "stereo_history", settings):
+                cv[held] = row
+                v = row["1.0/1.0"]
                 print(f"{name}: held out {held}: at 1.0/1.0 P {v['precision']:.4f} R {v['recall_gated']:.4f}",
                       flush=True)
             best, worst = choose(cv, a.min_precision)
@@ -216,16 +205,7 @@ def main(argv: list[str] | None = None) -> None:
             report[f"worst_fold_{name}"] = worst
             report[f"chosen_{name}"] = best
             print(f"{name}: chosen {best}: worst fold {worst.get(best)}; at 1.0/1.0: {worst['1.0/1.0']}", flush=True)
-    model = fit([f for fr in data.values() for f in fr], feats, hidden, a.epochs, a.seed, kind="stereo_history")
-    model.info["ranges"] = [r.name for r in a.ranges]
-    report["in_sample"] = {n: {f"{t}/{mg}": score(fr, model, t, mg) for t, mg in grid} for n, fr in data.items()}
-    model.save(a.out)
-    report["cpu_s"] = round(time.process_time() - c0, 1)
-    report["wall_s"] = round(time.time() - t0, 1)
-    from seedmap.io.atomic import atomic_write_text
-
-    atomic_write_text(a.report, json.dumps(report, indent=1) + "\n")
-    print(f"model {a.out}, report {a.report} ({report['cpu_s']} s CPU)")
+    fit_and_report(a, data, feats, hidden, "stereo_history", settings, report, t0, c0)
 
 
 if __name__ == "__main__":

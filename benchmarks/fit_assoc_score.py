@@ -41,6 +41,7 @@ from seedmap.associate.semantic import (  # noqa: E402
     ScoreModel,
     SeedMatcher,
     assign_logits,
+    candidate_positions,
     stereo_cue_candidates,
 )
 
@@ -48,22 +49,13 @@ from seedmap.associate.semantic import (  # noqa: E402
 def collect(dataset: Path, cache: Path | None, progress: bool = True) -> list[dict]:
     """Labelled candidates of every frame of ``dataset``: dicts with ``ia, ib, X, y, n, m, gated``
     (``gated``: the frame's ground-truth pairs that pass the stereo gates, the recall denominator)."""
-    if cache is not None:
-        f = cache / f"{dataset.name}.npz"
-        if f.is_file():
-            z = np.load(f, allow_pickle=True)
-            return list(z["frames"])
-    from seedmap.config import load_config
+    cached = load_cache(cache, f"{dataset.name}.npz")
+    if cached is not None:
+        return cached[0]
     from seedmap.eval.associate_metrics import stereo_gate
-    from seedmap.io import open_dataset
-    from seedmap.slam.config import SlamConfig
-    from seedmap.slam.pipeline import _detector_for
 
-    cfg = load_config(SlamConfig, None, ["association.stereo_prior=sgbm", "association.prior_score=learned"])
+    cfg, ds, matcher = gt_matcher(dataset, ["association.stereo_prior=sgbm", "association.prior_score=learned"])
     mcfg = cfg.association.model_copy(update={"prior_score": "mlp"})
-    ds = open_dataset(dataset)
-    det = _detector_for("gt", dataset, cfg.detect)
-    matcher = SeedMatcher(ds.calib, detector=det, cfg=cfg.association, gates=cfg.gates)
     matcher.keep_inputs = True
     sg = stereo_gate(ds.calib.width, cfg.gates)
     out = []
@@ -74,17 +66,107 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> list[di
             continue
         ia, ib, x = stereo_cue_candidates(f.kp_left, f.kp_right, ds.calib.width, cfg.gates, mcfg, disp, cues)
         idl, idr = f.seed_ids_left, f.seed_ids_right
-        y = (idl[ia] == idr[ib]) & (idl[ia] >= 0)
-        common, pa, pb = np.intersect1d(idl[idl >= 0], idr[idr >= 0], return_indices=True)
-        pa, pb = np.flatnonzero(idl >= 0)[pa], np.flatnonzero(idr >= 0)[pb]
-        gated = int(sg(f.kp_left[pa], f.kp_right[pb]).sum()) if len(common) else 0
+        y = same_seed(idl, idr, ia, ib)
+        gated = len(gated_true_pairs(idl, idr, f.kp_left, f.kp_right, sg)[0])
         out.append(dict(ia=ia, ib=ib, X=x.astype(np.float32), y=y, n=len(f.kp_left), m=len(f.kp_right), gated=gated))
         if progress:
             print(f"  {dataset.name} frame {i}: {len(ia)} candidates, {int(y.sum())} true", flush=True)
-    if cache is not None:
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(cache / f"{dataset.name}.npz", frames=np.array(out, dtype=object))
+    save_cache(cache, f"{dataset.name}.npz", out)
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# shared by the three candidate-score fit scripts (this one, fit_assoc_temporal.py, fit_assoc_history.py)
+# ----------------------------------------------------------------------------------------------
+
+
+def load_cache(cache: Path | None, name: str) -> tuple[list[dict], dict | None] | None:
+    """The labelled candidates cached as ``cache/name`` (its ``frames`` and, when stored, its
+    ``anatomy`` counts; None without them); None when there is no such file."""
+    if cache is None or not (cache / name).is_file():
+        return None
+    z = np.load(cache / name, allow_pickle=True)
+    return list(z["frames"]), (json.loads(str(z["anatomy"])) if "anatomy" in z.files else None)
+
+
+def save_cache(cache: Path | None, name: str, frames: list[dict], anatomy: dict | None = None) -> None:
+    """Write what :func:`load_cache` reads (nothing without a ``cache`` folder)."""
+    if cache is None:
+        return
+    cache.mkdir(parents=True, exist_ok=True)
+    extra = {} if anatomy is None else {"anatomy": json.dumps(anatomy)}
+    np.savez_compressed(cache / name, frames=np.array(frames, dtype=object), **extra)
+
+
+def gt_matcher(dataset: Path, overrides: list[str]):
+    """``(cfg, ds, matcher)``: the ``SlamConfig`` with ``overrides``, the opened ``dataset`` and a
+    :class:`SeedMatcher` on its ``gt`` oracle keypoints (which carry ground-truth seed ids), as
+    ``seedmap eval associate`` builds them."""
+    from seedmap.config import load_config
+    from seedmap.io import open_dataset
+    from seedmap.slam.config import SlamConfig
+    from seedmap.slam.pipeline import _detector_for
+
+    cfg = load_config(SlamConfig, None, overrides)
+    ds = open_dataset(dataset)
+    det = _detector_for("gt", dataset, cfg.detect)
+    return cfg, ds, SeedMatcher(ds.calib, detector=det, cfg=cfg.association, gates=cfg.gates)
+
+
+def same_seed(ids_a: np.ndarray, ids_b: np.ndarray, ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+    """Labels of the candidates ``(ia, ib)``: both keypoints carry the same ground-truth seed id."""
+    return (ids_a[ia] == ids_b[ib]) & (ids_a[ia] >= 0)
+
+
+def gated_true_pairs(ids_a: np.ndarray, ids_b: np.ndarray, ka: np.ndarray, kb: np.ndarray, gate
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(pa, pb)`` of the keypoints ``ka``/``kb`` with the same ground-truth seed id
+    that pass ``gate(ka, kb) -> bool`` (``seedmap.eval.associate_metrics``): the recall denominator."""
+    common, pa, pb = np.intersect1d(ids_a[ids_a >= 0], ids_b[ids_b >= 0], return_indices=True)
+    pa, pb = np.flatnonzero(ids_a >= 0)[pa], np.flatnonzero(ids_b >= 0)[pb]
+    ok = gate(ka[pa], kb[pb]) if len(common) else np.zeros(0, bool)
+    return pa[ok], pb[ok]
+
+
+def leave_one_out(data: dict[str, list[dict]], features: tuple[str, ...], hidden: tuple[int, ...], epochs: int,
+                  seed: int, kind: str, settings: dict[str, tuple[float, float]]):
+    """Per range of ``data`` (name -> labelled frames): ``(name, {setting: score})`` of the model
+    fitted on all other ranges, at every ``settings`` (name -> (min_logit, margin))."""
+    for held in data:
+        train = [f for n, fr in data.items() if n != held for f in fr]
+        mdl = fit(train, features, hidden, epochs, seed, kind=kind)
+        yield held, {k: score(data[held], mdl, t, mg) for k, (t, mg) in settings.items()}
+
+
+def cv_table(data: dict[str, list[dict]], features: tuple[str, ...], hidden: tuple[int, ...], a: argparse.Namespace,
+             kind: str, settings: dict[str, tuple[float, float]]) -> dict:
+    """:func:`leave_one_out` (epochs and seed from ``a``) as ``{held-out range: {setting: score}}``,
+    printing each fold's precision / gated recall at every setting."""
+    cv = {}
+    for held, row in leave_one_out(data, features, hidden, a.epochs, a.seed, kind, settings):
+        cv[held] = row
+        print(f"held out {held}: " + ", ".join(f"t>={t}: P {v['precision']:.4f} R {v['recall_gated']:.4f}"
+                                              for t, v in row.items()), flush=True)
+    return cv
+
+
+def fit_and_report(a: argparse.Namespace, data: dict[str, list[dict]], features: tuple[str, ...],
+                   hidden: tuple[int, ...], kind: str, settings: dict[str, tuple[float, float]], report: dict,
+                   t0: float, c0: float) -> None:
+    """The end of every fit script: the model fitted on all ranges of ``data`` (written to
+    ``a.out``) and ``report`` with its in-sample scores at ``settings`` and the run's CPU / wall
+    seconds since ``c0`` / ``t0`` (written to ``a.report``)."""
+    model = fit([f for fr in data.values() for f in fr], features, hidden, a.epochs, a.seed, kind=kind)
+    model.info["ranges"] = [r.name for r in a.ranges]
+    report["in_sample"] = {n: {k: score(fr, model, t, mg) for k, (t, mg) in settings.items()}
+                           for n, fr in data.items()}
+    model.save(a.out)
+    report["cpu_s"] = round(time.process_time() - c0, 1)
+    report["wall_s"] = round(time.time() - t0, 1)
+    from seedmap.io.atomic import atomic_write_text
+
+    atomic_write_text(a.report, json.dumps(report, indent=1) + "\n")
+    print(f"model {a.out}, report {a.report} ({report['cpu_s']} s CPU)")
 
 
 def fit(frames: list[dict], features: tuple[str, ...], hidden: tuple[int, ...], epochs: int, seed: int,
@@ -136,9 +218,7 @@ def score(frames: list[dict], model: ScoreModel, min_logit: float, margin: float
     for f in frames:
         t = model.logits(f["X"].astype(np.float64))
         m = assign_logits(f["ia"], f["ib"], t, f["n"], f["m"], min_logit, margin)
-        key = f["ia"] * f["m"] + f["ib"]
-        order = np.argsort(key)
-        pos = order[np.searchsorted(key[order], m.idx_a * f["m"] + m.idx_b)]
+        pos = candidate_positions(f["ia"], f["ib"], f["m"], m.idx_a, m.idx_b)
         correct += int(f["y"][pos].sum())
         kept += len(m)
         gated += f["gated"]
@@ -147,7 +227,8 @@ def score(frames: list[dict], model: ScoreModel, min_logit: float, margin: float
 
 def fit_arg_parser(description: str, cues: tuple[str, ...] | list[str], epochs: int, report: Path
                    ) -> argparse.ArgumentParser:
-    """The command line of the candidate-score fit scripts (this one and ``fit_assoc_temporal.py``)."""
+    """The command line of the candidate-score fit scripts (this one, ``fit_assoc_temporal.py`` and
+    ``fit_assoc_history.py``)."""
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("ranges", nargs="+", type=Path, help="rendered ranges to fit on (seedmap layout with gt/)")
     ap.add_argument("--out", type=Path, required=True, help="model JSON")
@@ -169,29 +250,12 @@ def main(argv: list[str] | None = None) -> None:
     feats = tuple(x for x in a.features.split(",") if x)
     hidden = tuple(int(x) for x in a.hidden.split(",") if x)
     data = {r.name: collect(r, a.cache) for r in a.ranges}
-    grid = (0.0, 0.5, 1.0, 1.5, 2.0)
+    settings = {str(t): (t, a.margin) for t in (0.0, 0.5, 1.0, 1.5, 2.0)}
     report: dict = {"ranges": [str(r) for r in a.ranges], "features": list(feats), "hidden": list(hidden),
                     "epochs": a.epochs, "seed": a.seed, "margin": a.margin}
     if a.cv and len(data) > 1:
-        cv = {}
-        for held in data:
-            train = [f for n, fr in data.items() if n != held for f in fr]
-            mdl = fit(train, feats, hidden, a.epochs, a.seed)
-            cv[held] = {str(t): score(data[held], mdl, t, a.margin) for t in grid}
-            print(f"held out {held}: " + ", ".join(f"t>={t}: P {v['precision']:.4f} R {v['recall_gated']:.4f}"
-                                                  for t, v in cv[held].items()), flush=True)
-        report["leave_one_out"] = cv
-    model = fit([f for fr in data.values() for f in fr], feats, hidden, a.epochs, a.seed)
-    model.info["ranges"] = [r.name for r in a.ranges]
-    report["in_sample"] = {n: {str(t): score(fr, model, t, a.margin) for t in grid} for n, fr in data.items()}
-    model.save(a.out)
-    report["cpu_s"] = round(time.process_time() - c0, 1)
-    report["wall_s"] = round(time.time() - t0, 1)
-    rep = a.report
-    from seedmap.io.atomic import atomic_write_text
-
-    atomic_write_text(rep, json.dumps(report, indent=1) + "\n")
-    print(f"model {a.out}, report {rep} ({report['cpu_s']} s CPU)")
+        report["leave_one_out"] = cv_table(data, feats, hidden, a, "stereo", settings)
+    fit_and_report(a, data, feats, hidden, "stereo", settings, report, t0, c0)
 
 
 if __name__ == "__main__":

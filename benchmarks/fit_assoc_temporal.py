@@ -29,7 +29,6 @@ Never fit on the evaluation ranges (seeds 13, 14, 15, 25, 26).
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -40,7 +39,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from fit_assoc_score import fit, fit_arg_parser, score  # noqa: E402
+from fit_assoc_score import (  # noqa: E402
+    cv_table,
+    fit_and_report,
+    fit_arg_parser,
+    gated_true_pairs,
+    gt_matcher,
+    load_cache,
+    same_seed,
+    save_cache,
+)
 
 from seedmap.associate.semantic import (  # noqa: E402
     TEMPORAL_CUE_NAMES,
@@ -98,22 +106,13 @@ def _anatomy(matcher: SeedMatcher, prev, cur, pred_uv, width: int, true_a: np.nd
 def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[list[dict], dict]:
     """Labelled temporal candidates of every consecutive frame pair of ``dataset`` (dicts with
     ``ia, ib, X, y, n, m, gated``) and the range's anatomy counts (summed over frame pairs)."""
-    if cache is not None:
-        f = cache / f"temporal_{dataset.name}.npz"
-        if f.is_file():
-            z = np.load(f, allow_pickle=True)
-            return list(z["frames"]), json.loads(str(z["anatomy"]))
-    from seedmap.config import load_config
+    cached = load_cache(cache, f"temporal_{dataset.name}.npz")
+    if cached is not None:
+        return cached
     from seedmap.eval.associate_metrics import temporal_gate
-    from seedmap.io import open_dataset
-    from seedmap.slam.config import SlamConfig
-    from seedmap.slam.pipeline import _detector_for
 
-    cfg = load_config(SlamConfig, None, ["association.stereo_prior=sgbm", "association.prior_score=mlp",
-                                         "association.temporal_score=mlp"])
-    ds = open_dataset(dataset)
-    det = _detector_for("gt", dataset, cfg.detect)
-    matcher = SeedMatcher(ds.calib, detector=det, cfg=cfg.association, gates=cfg.gates)
+    cfg, ds, matcher = gt_matcher(dataset, ["association.stereo_prior=sgbm", "association.prior_score=mlp",
+                                            "association.temporal_score=mlp"])
     tg = temporal_gate(ds.calib.width, cfg.gates)
     w = ds.calib.width
     out, anatomy = [], {k: 0 for k in (*STAGES, "in_mlp_window")}
@@ -125,14 +124,12 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[l
             cand = matcher.temporal_candidates(prev, f)
             ia, ib, x = cand
             ida, idb = prev.seed_ids_left, f.seed_ids_left
-            y = (ida[ia] == idb[ib]) & (ida[ia] >= 0)
-            common, pa, pb = np.intersect1d(ida[ida >= 0], idb[idb >= 0], return_indices=True)
-            pa, pb = np.flatnonzero(ida >= 0)[pa], np.flatnonzero(idb >= 0)[pb]
-            ok = tg(prev.kp_left[pa], f.kp_left[pb]) if len(common) else np.zeros(0, bool)
+            y = same_seed(ida, idb, ia, ib)
+            ta, tb = gated_true_pairs(ida, idb, prev.kp_left, f.kp_left, tg)
             out.append(dict(ia=ia, ib=ib, X=x.astype(np.float32), y=y, n=len(prev.kp_left), m=len(f.kp_left),
-                            gated=int(ok.sum())))
+                            gated=len(ta)))
             win = set((ia.astype(np.int64) * len(f.kp_left) + ib).tolist())
-            a = _anatomy(matcher, prev, f, pred_uv, w, pa[ok], pb[ok], win)
+            a = _anatomy(matcher, prev, f, pred_uv, w, ta, tb, win)
             for k, v in a.items():
                 anatomy[k] += v
             # drive the constant-velocity prediction with the field matching (what eval associate does)
@@ -141,12 +138,9 @@ def collect(dataset: Path, cache: Path | None, progress: bool = True) -> tuple[l
             matcher._update_shift(prev.kp_left, f.kp_left, m)
             if progress:
                 print(f"  {dataset.name} frames {i - 1}-{i}: {len(ia)} candidates, {int(y.sum())} true, "
-                      f"{int(ok.sum())} gated true pairs", flush=True)
+                      f"{len(ta)} gated true pairs", flush=True)
         prev = f
-    if cache is not None:
-        cache.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(cache / f"temporal_{dataset.name}.npz", frames=np.array(out, dtype=object),
-                            anatomy=json.dumps(anatomy))
+    save_cache(cache, f"temporal_{dataset.name}.npz", out, anatomy)
     return out, anatomy
 
 
@@ -163,28 +157,12 @@ def main(argv: list[str] | None = None) -> None:
         an = anatomy[r.name]
         print(f"{r.name} field-path anatomy (gated true pairs alive): "
               + ", ".join(f"{k} {an[k]} ({an[k] / max(an['gated'], 1):.3f})" for k in an), flush=True)
-    grid = (-1.0, 0.0, 0.5, 1.0, 1.5, 2.0)
+    settings = {str(t): (t, a.margin) for t in (-1.0, 0.0, 0.5, 1.0, 1.5, 2.0)}
     report: dict = {"ranges": [str(r) for r in a.ranges], "features": list(feats), "hidden": list(hidden),
                     "epochs": a.epochs, "seed": a.seed, "margin": a.margin, "field_anatomy": anatomy}
     if a.cv and len(data) > 1:
-        cv = {}
-        for held in data:
-            train = [f for n, fr in data.items() if n != held for f in fr]
-            mdl = fit(train, feats, hidden, a.epochs, a.seed, kind="temporal")
-            cv[held] = {str(t): score(data[held], mdl, t, a.margin) for t in grid}
-            print(f"held out {held}: " + ", ".join(f"t>={t}: P {v['precision']:.4f} R {v['recall_gated']:.4f}"
-                                                  for t, v in cv[held].items()), flush=True)
-        report["leave_one_out"] = cv
-    model = fit([f for fr in data.values() for f in fr], feats, hidden, a.epochs, a.seed, kind="temporal")
-    model.info["ranges"] = [r.name for r in a.ranges]
-    report["in_sample"] = {n: {str(t): score(fr, model, t, a.margin) for t in grid} for n, fr in data.items()}
-    model.save(a.out)
-    report["cpu_s"] = round(time.process_time() - c0, 1)
-    report["wall_s"] = round(time.time() - t0, 1)
-    from seedmap.io.atomic import atomic_write_text
-
-    atomic_write_text(a.report, json.dumps(report, indent=1) + "\n")
-    print(f"model {a.out}, report {a.report} ({report['cpu_s']} s CPU)")
+        report["leave_one_out"] = cv_table(data, feats, hidden, a, "temporal", settings)
+    fit_and_report(a, data, feats, hidden, "temporal", settings, report, t0, c0)
 
 
 if __name__ == "__main__":
