@@ -185,6 +185,9 @@ class CountConfig(ConfigModel):
     mv_dedupe_shared: float = Field(0.0, ge=0, description="multiview: join counted tracks closer than this many "
                                                            "median seed diameters even when they share views "
                                                            "(duplicate detections of one seed; 0 = off)")
+    mv_dedupe_size: Literal["median", "track"] = Field("median", description="multiview: the diameter of the "
+                                                       "two join radii above: the scan's median seed, or the mean "
+                                                       "of the two tracks' own median diameters")
     mv_surface_tol: float = Field(0.0, ge=0, description="multiview: drop stereo match candidates whose depth "
                                                          "lies more than this behind (and, unless "
                                                          "mv_surface_front_tol, in front of) the SGBM surface depth "

@@ -1099,15 +1099,31 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
     uf2 = _CannotLinkUnionFind(np.zeros(G, np.int64))
     uf2.vmask = vm
     med_diam = float(np.median(diam))
+    # the diameter a join radius is measured in: the scan's median seed, or (mv_dedupe_size="track")
+    # the mean of the two tracks' own median diameters (large seeds among small ones)
+    g_diam = None
+    if cfg.mv_dedupe_size == "track":
+        ok_d = alive & np.isfinite(diam)
+        o = np.lexsort((diam[ok_d], comp[ok_d]))
+        cg, dg = comp[ok_d][o], diam[ok_d][o]
+        lo = np.searchsorted(cg, np.arange(G))
+        hi = np.searchsorted(cg, np.arange(G), side="right")
+        g_diam = np.full(G, med_diam)
+        has = hi > lo
+        g_diam[has] = 0.5 * (dg[(lo[has] + hi[has] - 1) // 2] + dg[(lo[has] + hi[has]) // 2])
     # join close tracks, nearest pairs first: first those that share no view (mv_dedupe), then
     # (step 4b) those closer than two seeds can be even when they share views — a detector firing
     # twice on one seed makes two consistent tracks through the same views (mv_dedupe_shared)
-    for radius, force in ((cfg.mv_dedupe * med_diam, False), (cfg.mv_dedupe_shared * med_diam, True)):
+    for factor, force in ((cfg.mv_dedupe, False), (cfg.mv_dedupe_shared, True)):
+        radius = factor * (med_diam if g_diam is None or not len(counted) else float(g_diam[counted].max()))
         if radius <= 0 or len(counted) < 2:
             continue
         pairs = cKDTree(Xg[counted]).query_pairs(radius, output_type="ndarray")
         if len(pairs):
             dd = np.linalg.norm(Xg[counted[pairs[:, 0]]] - Xg[counted[pairs[:, 1]]], axis=1)
+            if g_diam is not None:
+                ok_p = dd < factor * 0.5 * (g_diam[counted[pairs[:, 0]]] + g_diam[counted[pairs[:, 1]]])
+                pairs, dd = pairs[ok_p], dd[ok_p]
             for p, q in counted[pairs[np.argsort(dd, kind="stable")]].tolist():
                 uf2.union(p, q, force=force)
     _, track = np.unique(np.array([uf2.find(g) for g in range(G)])[comp], return_inverse=True)
