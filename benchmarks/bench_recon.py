@@ -71,6 +71,20 @@ data/recon_s7 --tag s9fresh7``), ``..._fast_s9_sets.json`` (per set and panicle,
 runs vs the s9 network). The s9 network halves the red over-count (+10.2 -> +4.0 % on the six large-seeded red
 panicles) but lowers every count by about 1-2 points, so it is not the default (70 panicles 6.03 -> 5.86 %; 101-110
 4.33 -> 5.49 %).
+Session 10 (issue #6; helper E): the red tuning-only scans 310-315 and the arm training scans 300-319 were rendered
+with ``--config`` of a session-7 ``scan.yaml`` (camera scale 0.25, wind off; only the colours and
+``seed_diameter_min`` differ), so the ``--set sim.*`` bug fixed in commit 12ece9a did not touch them.
+``..._fast_s10_lever1.json``: counter settings on the tuning panicles 95-99 + 111-115 and red 310-315 (cached shipped
+keypoints, ``data/cnn_s10_arm/tune.py``, keys applied after the ``fast`` profile); ``..._fast_s10_B1_{tuning,red}.json``:
+an arm network fine-tuned gently with a small red share (``seedmap train fast-cnn`` on the session-7 mix plus red
+large-seeded scans 300, 303, 316, 317, ``--init fast_cnn_arm.onnx --lr 2e-4 --steps 1000 --arm-fraction 0.4``, 231 s
+CPU; ``--detector-set cnn.weights=data/cnn_s10_arm/B1/fast_cnn.onnx cnn.threshold=0.4``): tuning 4.84 -> 5.23 %, red
+5.13 -> 6.34 % (every count lower, as in session 9), rejected. Frozen: ``mv_dedupe_size=track mv_dedupe_shared=0.7``
+(tuning + red 4.95 -> 4.88 %), run once (``--recount --count-set detector_profile=false <fast profile keys>
+mv_dedupe_size=track mv_dedupe_shared=0.7`` on copies of the session-8/9 folders): ``..._fast_s10_sets.json`` per set
+and panicle; 70 never-tuned + fresh 190-199 panicles 6.03 -> 6.12 %, not adopted. Panicles 200-204 rendered after the
+freeze (``--eval 100 200 ... 204 --detectors gt fast --modes seeds --data-dir data/recon_s7 --tag s10fresh8``):
+``..._{gt,fast}_s10_fresh8.json`` (``gt`` 3.66 %, ``fast`` 7.42 %), ``..._fast_s10_new_fresh8.json`` (candidate 7.59 %).
 """
 
 from __future__ import annotations

@@ -44,6 +44,9 @@ from seedmap.io.options import DatasetOptions
 #: ``fast`` now ranks stereo candidates by their row residual too (mv_row_sigma_px 1.5: fewer ghosts AND fewer
 #: misses) and links leftover single-view matches in a second pass (mv_relink_px 10, support >= 1.5): tuning MAPE
 #: 5.38 % (-1.7 %) -> 4.84 % (-2.2 %), ghosts 3538 -> 3097, missed 4267 -> 3912 on the ten tuning panicles.
+#: Session 10 (issue #6, red large-seeded over-count): unchanged; the opt-in track-sized joins
+#: (``mv_dedupe_size=track mv_dedupe_shared=0.7``, best on the tuning + red tuning-only panicles, 4.95 -> 4.88 %)
+#: scored 6.03 -> 6.12 % on the 70 never-tuned + fresh panicles (seedmap.recon.count step 4).
 DETECTOR_PROFILES: dict[str, list[str]] = {
     "gt": ["mv_link_joint=true", "mv_link_px=1.5", "mv_scale_ref_px=7.0", "mv_scale_power=1.5"],
     "fast": ["mv_dedupe_shared=0.6", "mv_stereo_dv_px=4", "mv_link_px=4", "mv_max_reproj_px=5", "mv_grow_px=4",

@@ -127,6 +127,16 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
    are 0.63 median diameters apart on the dark panicle 115 (median of 253 such pairs within 1.5
    diameters; the bright 111: 43 pairs), and joining up to 0.6 diameters takes 163 such pairs against
    8 pairs of two different seeds on the tuning panicles 96, 98, 111, 114, 115 (0.8: 232 against 69).
+   *Track-sized joins* (``mv_dedupe_size="track"``; off): both join radii are measured in the mean of the
+   two tracks' own median diameters instead of the scan's median seed (a large seed among small ones
+   whose two detections lie farther apart). Session 10 (issue #6: ``fast`` over-counts red large-seeded
+   varieties by +10 %): on the tuning panicles 95-99 + 111-115 plus the red tuning-only 310-315 (shipped
+   arm network) MAPE 4.95 -> 4.88 % with 0.7 diameters (95-99 + 111-115 4.84 -> 4.88, red 5.13 -> 4.88),
+   the best of seven counter settings tried there (scan-sized 0.7: 4.89; ``mv_scale_max`` 2.0: 5.05;
+   ``mv_dup_size`` 0.3 / 0.4: 5.05 / 5.44), frozen and run once on the 70 never-tuned + fresh 190-199
+   panicles: 6.03 -> 6.12 %, red large-seeded +10.2 -> +10.9 %, so it stays off. No join radius moved
+   the over-counted red tuning panicle 311 (+9.1 %) by more than a point: its surplus tracks are not two
+   tracks on one seed.
 
 **Detector profiles.** ``CountConfig.detector_profiles`` holds key=value overrides per detector name
 that the pipeline and ``seedmap count`` apply on top of the count settings
