@@ -3,13 +3,15 @@
 Detectors: ``fast-classic`` (session 2) at full and half resolution, and the ``fast`` CNN
 (``fast-cnn``, onnxruntime) at full resolution with 1 and 2 threads, on gated tiles and whole-image,
 and per stereo frame with the left and right image in sequence or concurrently (``cnn.stereo_threads``);
-``--cnn-weights OTHER.onnx`` adds the same rows for a second network (e.g. the previous weights).
+``--cnn-weights OTHER.onnx`` adds the same rows for a second network (e.g. the previous weights); repeat it to
+time several candidates against the shipped network in one run (their CPU ratios then share one baseline).
 
 The baseline (a 5x5-sigma-2 Gaussian blur of the same RGB image) is timed in the same run, so the
 ratio ``detector_ms / blur_ms`` is comparable across machines and loads. Also times one training
 iteration of the full-width VGG16 Faster R-CNN and of pix2pix on CPU, to estimate full training time.
 
     .venv/bin/python benchmarks/bench_detect.py [--dataset data/det_s2] [--no-learned] [--repeats 10]
+        [--cnn-weights OTHER.onnx ...] [--interleave 40]
 
 Writes benchmarks/results/bench_detect.json.
 """
@@ -72,12 +74,53 @@ def _image(dataset: str | None, width: int, height: int) -> tuple[np.ndarray, st
     return img, src
 
 
+def _interleaved(a, cnn_sets: list) -> dict:  # noqa: ANN001 - argparse namespace
+    """CPU ms per full-resolution image of each network (1 onnxruntime thread), timed round-robin: every round runs
+    each network once on the same image, so a change of the host's load hits all of them alike. Session 10: the
+    sequential rows above gave an architecture-identical network 1.22x the shipped one's CPU on a loaded host."""
+    from seedmap.detect import make_detector
+
+    img, src = _image(a.dataset, 1434, 1050)
+    res = {"image": src, "rounds": a.interleave, "networks": {}}
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        for tile, label in ((None, "gated tiles"), (0, "whole image")):
+            dets = {}
+            for wl, wo in cnn_sets:
+                ov = ["cnn.threads=1"] + ([f"cnn.tile={tile}"] if tile is not None else []) + wo
+                dets[wl.strip(" []") or "shipped"] = make_detector("fast-cnn", overrides=ov)
+            ts = {k: [] for k in dets}
+            for d in dets.values():
+                d.detect(img)  # warm-up
+            rounds = a.interleave if tile is None else max(3, a.interleave // 4)
+            for _ in range(rounds):
+                for k, d in dets.items():
+                    t0 = time.process_time()
+                    d.detect(img)
+                    ts[k].append(time.process_time() - t0)
+            med = {k: float(np.median(v)) * 1000.0 for k, v in ts.items()}
+            res["networks"][label] = {k: {"cpu_ms": med[k], "ratio_vs_shipped": med[k] / med["shipped"],
+                                          "cpu_ms_p25_p75": [float(np.percentile(ts[k], 25)) * 1000.0,
+                                                             float(np.percentile(ts[k], 75)) * 1000.0]}
+                                      for k in med}
+            print({"interleaved": label, **{k: round(v["ratio_vs_shipped"], 3)
+                                            for k, v in res["networks"][label].items()}}, flush=True)
+    finally:
+        cv2.setNumThreads(n)
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--dataset", default=None)
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--no-learned", action="store_true")
-    ap.add_argument("--cnn-weights", default=None, help="a second fast_cnn.onnx to time next to the shipped one")
+    ap.add_argument("--cnn-weights", action="append", default=[],
+                    help="another fast_cnn.onnx to time next to the shipped one (repeatable: several in one run)")
+    ap.add_argument("--interleave", type=int, default=0,
+                    help="also time the shipped and every --cnn-weights network round-robin for this many rounds "
+                         "(1 thread; CPU ms per image, median) and report each one's ratio to the shipped network")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_detect.json"))
     a = ap.parse_args()
 
@@ -86,7 +129,7 @@ def main() -> None:
     from seedmap.detect.config import CnnConfig, FastConfig
 
     rows = []
-    cnn_sets = [("", [])] + ([(f" [{a.cnn_weights}]", [f"cnn.weights={a.cnn_weights}"])] if a.cnn_weights else [])
+    cnn_sets = [("", [])] + [(f" [{w}]", [f"cnn.weights={w}"]) for w in a.cnn_weights]
     for scale in (1.0, 0.5):
         w, h = int(round(1434 * scale)), int(round(1050 * scale))
         img, src = _image(a.dataset, w, h)
@@ -153,6 +196,7 @@ def main() -> None:
                          "ms": ms, "fps": 1000.0 / ms, "blur_ms": blur_ms, "ratio_vs_blur": ms / blur_ms,
                          "cpu_ms_1thread": cpu_ms})
             print(rows[-1], flush=True)
+    interleaved = _interleaved(a, cnn_sets) if a.interleave > 0 and default_cnn_path().is_file() else {}
     training = {}
     if not a.no_learned:
         try:
@@ -239,7 +283,7 @@ def main() -> None:
     import os
 
     res = {"machine": platform.processor() or platform.machine(), "cpus": os.cpu_count(),
-           "load_avg_1m": os.getloadavg()[0], "rows": rows, "training": training,
+           "load_avg_1m": os.getloadavg()[0], "rows": rows, "interleaved": interleaved, "training": training,
            "note": "ms = median wall time per image; ratio_vs_blur = ms / cv2.GaussianBlur(sigma 2) ms of the same "
                    "image in the same run. The host was shared with other jobs (see load_avg_1m)."}
     out.write_text(json.dumps(res, indent=2))

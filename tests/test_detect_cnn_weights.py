@@ -60,16 +60,18 @@ def small(tmp_path_factory):
     return SeedmapDataset(out)
 
 
-@pytest.mark.parametrize("name, c1", [("fast_cnn_s9.onnx", 8), ("fast_cnn_s9_wide.onnx", 10)])
-def test_session9_networks_are_selectable_and_find_seeds(small, name, c1):
-    """The opt-in session-9 networks (trained with the later-renderer ranges det_s40-44 and det_s60-67) load by
-    name, are the architecture their metadata says, and detect seeds on an unseen simulated frame about as well
-    as the default network (session-9 validation: +0.005 / +0.010 mean box F1)."""
+@pytest.mark.parametrize("name, c1, c2", [("fast_cnn_s9.onnx", 8, 16), ("fast_cnn_s9_wide.onnx", 10, 20),
+                                         ("fast_cnn_s10.onnx", 8, 20)])
+def test_opt_in_networks_are_selectable_and_find_seeds(small, name, c1, c2):
+    """The opt-in session-9 and session-10 networks (trained with the later-renderer ranges det_s40-44 and
+    det_s60-67) load by name, are the architecture their metadata says, and detect seeds on an unseen simulated
+    frame about as well as the default network (validation: +0.005 / +0.010 / +0.012 mean box F1)."""
     from seedmap.eval.detect_metrics import frame_metrics
 
     det = make_detector("fast", overrides=[f"cnn.weights={name}"])
     assert det.path == default_cnn_path().with_name(name) and det.path.stat().st_size < 100_000
-    assert det.info["config"]["c1"] == c1 and "data/det_s60" in det.info["train_sets"]
+    assert det.info["config"]["c1"] == c1 and det.info["config"]["c2"] == c2
+    assert "data/det_s60" in det.info["train_sets"]
     assert det.threshold == 0.45
     i = 2
     img, inst = small[i].left, small.gt_instances(i, "left")

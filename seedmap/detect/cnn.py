@@ -74,7 +74,8 @@ def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
 
     Opt-in networks shipped in session 9 (training and held-out numbers in :mod:`seedmap.detect.train_cnn`):
     ``fast_cnn_s9.onnx`` (the field network fine-tuned on ranges from the later renderer; same cost) and
-    ``fast_cnn_s9_wide.onnx`` (10/20 channels, 1.5x the CPU). A bare file name that is not a file in the working directory names one of the shipped networks in
+    ``fast_cnn_s9_wide.onnx`` (10/20 channels, 1.5x the CPU); session 10: ``fast_cnn_s10.onnx`` (8/20 channels
+    from scratch on the session-9 ranges, 1.2x the CPU). A bare file name that is not a file in the working directory names one of the shipped networks in
     ``seedmap/detect/weights/`` (e.g. ``--set cnn.weights=fast_cnn_s9.onnx``), so an opt-in network can be
     chosen without knowing where the package is installed."""
     p = Path(weights or cfg.weights or default_cnn_path(cfg.domain))

@@ -111,6 +111,18 @@ paper6-s1106 / paper2-s1102 with the scene overrides): paper6-hard 100 % / 100 %
 (17.4 mm) / 18.4 %** -- tracked to the end, yet only 0.92 m of the map GT-validated, the session-7 failure again. The
 wide network maps both hard scenes in full (paper2-hard 13.8 mm, paper6-hard 13.9 mm).
 
+Session 10 (issue #3): (A) 8/20 channels from scratch with the session-9 recipe (``--c1 8 --c2 20 --steps 6000``, same
+19 ranges and --val; 1,034 s CPU) and (G) the shipped network fine-tuned on the 13 later-renderer ranges only
+(det_s40-44, det_s60-67; ``--init fast_cnn.onnx --lr 5e-4 --steps 2000``, 286 s). Validation F1 at 0.45 (det_s36 /
+s45 / s68 / s69 / s36_new, mean): A 0.903 / 0.894 / 0.879 / 0.842 / 0.890, 0.882; G 0.901 / 0.888 / 0.873 / 0.833 /
+0.888, 0.876 (vs session-9 B on all 19 ranges 0.875: dropping the old-renderer ranges gains ~0.002). CPU per image,
+timed round-robin (``benchmarks/bench_detect.py --interleave 40``): A 1.19x (gated tiles) / 1.28x (whole image), G
+0.97x / 1.01x, fast_cnn_s9_wide 1.66x / 1.85x. Frozen: A as ``weights/fast_cnn_s10.onnx`` (opt-in). Held-out, run once
+after the freeze (``benchmarks/detect_heldout_s10.py``; det_s2 / s21 / s2_new / s22 / s23 / s24 at 0.45): 0.867 / 0.897
+/ 0.892 / 0.830 / 0.886 / 0.857 (shipped 0.871 / 0.888 / 0.892 / 0.817 / 0.880 / 0.835), pooled over five 0.8775
+(0.8730), over six 0.8741 (0.8666): +0.005 / +0.007, below the +0.01 adoption bar, so it stays opt-in. SLAM passes
+(100 % GT-validated on slam_r1 and both hard scenes; ATE 4.6 / 13.8 / 12.7 mm vs 4.7 / 17.4 / 15.8 mm).
+
 Inference does not need torch: :func:`export_onnx` writes an ONNX graph that
 :mod:`seedmap.detect.cnn` runs in onnxruntime. Weights/checkpoints are safetensors.
 """
