@@ -18,3 +18,19 @@ def tiny_range(tmp_path_factory):
     cfg = load_config(SimConfig, None, ["world.length=0.4", "camera.scale=0.2", "seed=5"])
     simulate_range(cfg, out, overwrite=False, progress=False)
     return out
+
+
+@pytest.fixture(scope="session")
+def cnn_range(tmp_path_factory):
+    """A 0.2 m range, seed 41, at the default pixel scale but a 1200x900 window (6 frames), rendered once per run
+    for the CNN detector tests (read only)."""
+    from seedmap.config import load_config
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+    from seedmap.sim import simulate_range
+    from seedmap.sim.config import SimConfig
+
+    out = tmp_path_factory.mktemp("cnn") / "r"
+    cfg = load_config(SimConfig, None, ["world.length=0.2", "seed=41", "camera.width=1200", "camera.height=900",
+                                        "camera.cx=600", "camera.cy=450"])
+    simulate_range(cfg, out, overwrite=False, progress=False)
+    return SeedmapDataset(out)

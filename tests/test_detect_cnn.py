@@ -13,27 +13,13 @@ from seedmap.eval.detect_metrics import frame_metrics
 from seedmap.io.seedmap_dataset import SeedmapDataset
 
 
-@pytest.fixture(scope="module")
-def small(tmp_path_factory):
-    """A 0.2 m range, seed 41, at the default pixel scale but a 420x315 window (6 frames, ~20 s)."""
-    from seedmap.config import load_config
-    from seedmap.sim import simulate_range
-    from seedmap.sim.config import SimConfig
-
-    out = tmp_path_factory.mktemp("cnn") / "r"
-    cfg = load_config(SimConfig, None, ["world.length=0.2", "seed=41", "camera.width=1200", "camera.height=900",
-                                        "camera.cx=600", "camera.cy=450"])
-    simulate_range(cfg, out, overwrite=False, progress=False)
-    return SeedmapDataset(out)
-
-
-def test_shipped_cnn_finds_most_seeds(small):
+def test_shipped_cnn_finds_most_seeds(cnn_range):
     """The shipped network (trained on other seeds) on an unseen simulated frame: most seeds, < 1 px."""
     assert default_cnn_path().is_file() and default_cnn_path().stat().st_size < 5e6
     det = make_detector("fast-cnn")
     assert isinstance(det, CnnDetector)
     i = 2
-    img, inst = small[i].left, small.gt_instances(i, "left")
+    img, inst = cnn_range[i].left, cnn_range.gt_instances(i, "left")
     d = det.detect(img)
     m, err = frame_metrics(d, inst, min_gt_area=6)
     # box IoU >= 0.5 on 5 px seeds is strict (held-out F1 ~0.76 on full ranges); centres are found below
@@ -78,12 +64,12 @@ def test_bad_weights_are_named(tmp_path):
         CnnDetector(CnnConfig(tile=47))
 
 
-def test_few_training_steps_reduce_the_loss(small, tmp_path):
+def test_few_training_steps_reduce_the_loss(cnn_range, tmp_path):
     pytest.importorskip("torch")
     from seedmap.detect.train_cnn import CnnTrainConfig, train_cnn
 
     cfg = CnnTrainConfig(steps=60, batch=4, crop=48, lr=3e-3, val_every=30, val_crops=16, c1=8, c2=12)
-    m = train_cnn([small.root], tmp_path / "o", None, cfg, progress=False)
+    m = train_cnn([cnn_range.root], tmp_path / "o", None, cfg, progress=False)
     h = m["history"]
     assert [r["step"] for r in h] == [30, 60]
     first = h[0]["train_loss"]
@@ -91,21 +77,21 @@ def test_few_training_steps_reduce_the_loss(small, tmp_path):
     onnx = tmp_path / "o" / "fast_cnn.onnx"
     assert onnx.is_file() and (tmp_path / "o" / "checkpoint.safetensors").is_file()
     # the exported graph runs in onnxruntime through the detector
-    d = CnnDetector(CnnConfig(weights=str(onnx), threshold=0.05)).detect(small[0].left)
+    d = CnnDetector(CnnConfig(weights=str(onnx), threshold=0.05)).detect(cnn_range[0].left)
     assert len(d) > 0
     # resume continues from the checkpoint's step
     cfg.steps = 70
-    m2 = train_cnn([small.root], tmp_path / "o", None, cfg, resume=True, progress=False)
+    m2 = train_cnn([cnn_range.root], tmp_path / "o", None, cfg, resume=True, progress=False)
     assert m2["steps"] == 70 and [r["step"] for r in m2["history"]] == [30, 60, 70]
 
 
-def test_scale_finds_seeds_rendered_twice_as_large(small):
+def test_scale_finds_seeds_rendered_twice_as_large(cnn_range):
     """``cnn.scale``: on a frame upscaled 2x (seeds twice the training size) the network run at scale 0.5
     finds the same seeds as on the original frame, with keypoints and boxes mapped back to the 2x pixels."""
     import cv2
 
     i = 2
-    img, inst = small[i].left, small.gt_instances(i, "left")
+    img, inst = cnn_range[i].left, cnn_range.gt_instances(i, "left")
     big = cv2.resize(img, None, fx=2, fy=2, interpolation=cv2.INTER_LINEAR)
     d1 = make_detector("fast-cnn").detect(img)
     d2 = make_detector("fast-cnn", overrides=["cnn.scale=0.5"]).detect(big)
@@ -150,7 +136,7 @@ def test_arm_network_detects_arm_scan_seeds_better(tmp_path):
     assert m["arm"].precision > m["field"].precision + 0.1 and m["arm"].recall > m["field"].recall
 
 
-def test_training_can_start_from_shipped_weights(small, tmp_path):
+def test_training_can_start_from_shipped_weights(cnn_range, tmp_path):
     """``init_weights``: fine-tuning starts from an ONNX network's parameters (and its channel counts); with a
     vanishing learning rate the exported network detects what the one it started from detects."""
     pytest.importorskip("torch")
@@ -158,15 +144,15 @@ def test_training_can_start_from_shipped_weights(small, tmp_path):
 
     cfg = CnnTrainConfig(steps=2, batch=2, crop=48, lr=1e-9, val_every=2, val_crops=4, c1=12, c2=24,
                          init_weights=str(default_cnn_path()))
-    m = train_cnn([small.root], tmp_path / "o", None, cfg, progress=False)
+    m = train_cnn([cnn_range.root], tmp_path / "o", None, cfg, progress=False)
     assert (m["config"]["c1"], m["config"]["c2"]) == (8, 16)
-    img = small[1].left
+    img = cnn_range[1].left
     a = make_detector("fast-cnn").detect(img)
     b = CnnDetector(CnnConfig(weights=str(tmp_path / "o" / "fast_cnn.onnx"))).detect(img)
     assert len(a) > 500 and abs(len(a) - len(b)) <= 0.01 * len(a)
     dist, _ = cKDTree(a.keypoints).query(b.keypoints)
     assert np.median(dist) < 0.01
     with pytest.raises(InputError):
-        train_cnn([small.root], tmp_path / "o2", None,
+        train_cnn([cnn_range.root], tmp_path / "o2", None,
                   CnnTrainConfig(steps=1, init_weights=str(tmp_path / "none.onnx")), progress=False)
     assert not (tmp_path / "o2").exists()  # a bad --init leaves no empty output folder behind

@@ -45,24 +45,9 @@ def test_selected_network_is_the_one_that_runs(tmp_path, monkeypatch):
     assert len(field) != len(by_name) or not np.allclose(field.scores, by_name.scores)
 
 
-@pytest.fixture(scope="module")
-def small(tmp_path_factory):
-    """A 0.2 m range, seed 41, at the default pixel scale but a 1200x900 window (as tests/test_detect_cnn.py)."""
-    from seedmap.config import load_config
-    from seedmap.io.seedmap_dataset import SeedmapDataset
-    from seedmap.sim import simulate_range
-    from seedmap.sim.config import SimConfig
-
-    out = tmp_path_factory.mktemp("cnn_w") / "r"
-    cfg = load_config(SimConfig, None, ["world.length=0.2", "seed=41", "camera.width=1200", "camera.height=900",
-                                        "camera.cx=600", "camera.cy=450"])
-    simulate_range(cfg, out, overwrite=False, progress=False)
-    return SeedmapDataset(out)
-
-
 @pytest.mark.parametrize("name, c1, c2", [("fast_cnn_s9.onnx", 8, 16), ("fast_cnn_s9_wide.onnx", 10, 20),
                                          ("fast_cnn_s10.onnx", 8, 20)])
-def test_opt_in_networks_are_selectable_and_find_seeds(small, name, c1, c2):
+def test_opt_in_networks_are_selectable_and_find_seeds(cnn_range, name, c1, c2):
     """The opt-in session-9 and session-10 networks (trained with the later-renderer ranges det_s40-44 and
     det_s60-67) load by name, are the architecture their metadata says, and detect seeds on an unseen simulated
     frame about as well as the default network (validation: +0.005 / +0.010 / +0.012 mean box F1)."""
@@ -74,7 +59,7 @@ def test_opt_in_networks_are_selectable_and_find_seeds(small, name, c1, c2):
     assert "data/det_s60" in det.info["train_sets"]
     assert det.threshold == 0.45
     i = 2
-    img, inst = small[i].left, small.gt_instances(i, "left")
+    img, inst = cnn_range[i].left, cnn_range.gt_instances(i, "left")
     m, err = frame_metrics(det.detect(img), inst, min_gt_area=10)
     m0, _ = frame_metrics(make_detector("fast").detect(img), inst, min_gt_area=10)
     assert m.precision > 0.85 and m.f1 > 0.84 and np.median(err) < 0.6, m

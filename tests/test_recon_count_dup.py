@@ -14,10 +14,11 @@ from seedmap.recon.config import CountConfig
 from seedmap.recon.count import StereoKeypoints, count_multiview, merge_close_keypoints
 
 
-def _with_duplicates(rng: np.random.Generator, offset_m: float, share: float = 0.33):
+def _with_duplicates(rng: np.random.Generator, offset_m: float, share: float = 0.33, big: float = 1.0):
     """The cylinder scan plus a second detection (left and right image) on ``share`` of the seeds,
     ``offset_m`` along the cylinder axis from the seed centre on the same spot in every view (a
-    detector firing on both ends of a seed): views, poses, countable ids."""
+    detector firing on both ends of a seed); those seeds' detections are ``big`` x the others' size
+    (1.0: the same size): views, poses, countable ids."""
     views, poses, ids_l, countable, centres = scan(rng)
     ids_r = scan.ids_r
     twice = rng.random(len(centres)) < share
@@ -29,10 +30,11 @@ def _with_duplicates(rng: np.random.Generator, offset_m: float, share: float = 0
         il = ids_l[v][(ids_l[v] >= 0) & twice[np.maximum(ids_l[v], 0)]]
         ir = ids_r[v][ids_r[v] >= 0]
         ir = ir[twice[ir]]
+        size = kp.left_size * np.where(twice[ids_l[v]], big, 1.0)
         out.append(StereoKeypoints(
             np.vstack([kp.left, uv[il] + rng.normal(0, 0.3, (len(il), 2))]),
             np.vstack([kp.right, np.column_stack([ur[ir], uv[ir, 1]]) + rng.normal(0, 0.3, (len(ir), 2))]),
-            np.concatenate([kp.left_size, np.full(len(il), np.median(kp.left_size))])))
+            np.concatenate([size, np.full(len(il), big * np.median(kp.left_size))])))
     return out, poses, countable
 
 

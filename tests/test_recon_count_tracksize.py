@@ -6,9 +6,9 @@ seeds, neighbours >= 0.96 diameters apart)."""
 from __future__ import annotations
 
 import numpy as np
-from test_recon_multiview import CALIB, SEED_D, scan  # pytest puts tests/ on sys.path
+from test_recon_count_dup import _with_duplicates  # pytest puts tests/ on sys.path
+from test_recon_multiview import CALIB, SEED_D, scan
 
-from seedmap.geometry import invert
 from seedmap.recon.config import CountConfig
 from seedmap.recon.count import StereoKeypoints, count_multiview
 
@@ -16,23 +16,7 @@ from seedmap.recon.count import StereoKeypoints, count_multiview
 def _large_with_duplicates(rng: np.random.Generator, share: float, offset_d: float, big: float = 1.5):
     """``share`` of the seeds are detected ``big`` x larger and carry a second detection ``offset_d`` of the
     4 mm seed diameter along the cylinder axis (left and right image, every view): views, poses, countable ids."""
-    views, poses, ids_l, countable, centres = scan(rng)
-    ids_r = scan.ids_r
-    large = rng.random(len(centres)) < share
-    dup_xyz = centres + [0.0, 0.0, offset_d * SEED_D]
-    out = []
-    for v, kp in enumerate(views):
-        Tcw = invert(poses[v])
-        uv, ur = CALIB.project(dup_xyz @ Tcw[:3, :3].T + Tcw[:3, 3])
-        il = ids_l[v][(ids_l[v] >= 0) & large[np.maximum(ids_l[v], 0)]]
-        ir = ids_r[v][ids_r[v] >= 0]
-        ir = ir[large[ir]]
-        size = kp.left_size * np.where(large[ids_l[v]], big, 1.0)
-        out.append(StereoKeypoints(
-            np.vstack([kp.left, uv[il] + rng.normal(0, 0.3, (len(il), 2))]),
-            np.vstack([kp.right, np.column_stack([ur[ir], uv[ir, 1]]) + rng.normal(0, 0.3, (len(ir), 2))]),
-            np.concatenate([size, np.full(len(il), big * np.median(kp.left_size))])))
-    return out, poses, countable
+    return _with_duplicates(rng, offset_d * SEED_D, share, big)
 
 
 def test_track_sized_join_absorbs_the_second_detection_on_large_seeds_only():
