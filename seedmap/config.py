@@ -51,11 +51,12 @@ def apply_overrides(data: dict, overrides: Sequence[str]) -> dict:
     return data
 
 
-def _deep_merge(base: dict, extra: dict) -> dict:
+def deep_merge(base: dict, extra: dict) -> dict:
+    """``extra`` over ``base``, nested mappings merged key by key (neither argument is modified)."""
     out = dict(base)
     for k, v in extra.items():
         if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _deep_merge(out[k], v)
+            out[k] = deep_merge(out[k], v)
         else:
             out[k] = v
     return out
@@ -79,7 +80,7 @@ def load_config(
             raise ConfigError(f"not valid YAML ({str(e).splitlines()[0]})", p) from None
         if not isinstance(loaded, dict):
             raise ConfigError("config must be a YAML mapping", p)
-        data = _deep_merge(data, loaded)
+        data = deep_merge(data, loaded)
     data = apply_overrides(data, overrides)
     try:
         return cls.model_validate(data)

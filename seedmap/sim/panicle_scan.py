@@ -37,11 +37,11 @@ from typing import Literal, Union
 
 from pydantic import Field, field_validator
 
-from seedmap.config import ConfigModel, config_to_yaml
+from seedmap.config import ConfigModel, config_to_yaml, deep_merge
 from seedmap.errors import ConfigError, InputError
 from seedmap.geometry import invert, pose_to_tum
 from seedmap.sim.arm import ArmConfig, arm_yaml_dict, simulate_capture, write_joints_csv
-from seedmap.sim.config import CameraConfig, SimConfig, WindConfig
+from seedmap.sim.config import SimConfig
 
 
 #: the arm scan's departures from the field simulator's defaults: a quarter-resolution camera and no
@@ -51,7 +51,7 @@ SCAN_SIM_DEFAULTS: dict = {"camera": {"scale": 0.25}, "wind": {"enabled": False}
 
 
 def _default_sim() -> SimConfig:
-    return SimConfig(camera=CameraConfig(scale=0.25), wind=WindConfig(enabled=False))
+    return SimConfig.model_validate(SCAN_SIM_DEFAULTS)
 
 
 class PanicleScanConfig(ConfigModel):
@@ -69,9 +69,7 @@ class PanicleScanConfig(ConfigModel):
     @classmethod
     def _scan_sim_defaults(cls, v):  # noqa: ANN001, ANN206 - pydantic validator
         if isinstance(v, dict):
-            from seedmap.config import _deep_merge
-
-            return _deep_merge(SCAN_SIM_DEFAULTS, v)
+            return deep_merge(SCAN_SIM_DEFAULTS, v)
         return v
 
     @field_validator("exposure")
