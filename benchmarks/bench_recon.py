@@ -208,6 +208,18 @@ def _count_diagnostics(obs: dict, root: Path, gt_ids: np.ndarray) -> dict:
     return out
 
 
+def _attach_descriptors(root: Path, kps: list, cfg) -> None:
+    """Context descriptors (``CountConfig.mv_desc_size`` / ``mv_desc_grid``) of cached keypoints, from the
+    scan's images, as the pipeline computes them when it prepares a view (in place; not cached)."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = SeedmapDataset(root)
+    for i, kp in enumerate(kps):
+        if kp is not None and cfg.mv_desc_size > 0:
+            fr = ds[i]
+            kp.describe(fr.left, fr.right, cfg.mv_desc_size, cfg.mv_desc_grid)
+
+
 def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, oracle: bool,
                   kps: list | None = None, calib=None, count_set: tuple[str, ...] = (), det: str = "gt") -> dict:
     """Every count method on one reconstruction's observations (``multiview``: on the 2D
@@ -223,6 +235,8 @@ def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, ora
         c1 = time.process_time()
         if meth == "multiview":
             mv_cfg = CountConfig(**apply_overrides({"method": meth}, count_set)).for_detector(det)
+            if mv_cfg.mv_appearance_weight > 0:
+                _attach_descriptors(root, kps, mv_cfg)
             n = count_multiview(kps, obs["poses"], calib, mv_cfg).count
         else:
             n = count_seeds(obs["xyz"], obs["view"], obs["diam"], CountConfig(method=meth), origin=origin).count

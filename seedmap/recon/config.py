@@ -51,7 +51,8 @@ DETECTOR_PROFILES: dict[str, list[str]] = {
     "gt": ["mv_link_joint=true", "mv_link_px=1.5", "mv_scale_ref_px=7.0", "mv_scale_power=1.5"],
     "fast": ["mv_dedupe_shared=0.6", "mv_stereo_dv_px=4", "mv_link_px=4", "mv_max_reproj_px=5", "mv_grow_px=4",
              "mv_min_support=0.5", "mv_scale_ref_px=6.0", "mv_scale_power=1.5",
-             "mv_row_sigma_px=1.5", "mv_relink_px=10", "mv_relink_min_support=1.5"],
+             "mv_row_sigma_px=1.5", "mv_relink_px=10", "mv_relink_min_support=1.5",
+             "mv_desc_size=6", "mv_desc_grid=15", "mv_appearance_weight=5"],
     "fast-classic": ["mv_dedupe_shared=1.0"],
 }
 #: ``fast-cnn`` is the same network as ``fast`` (when its weights exist), so it counts with the same profile
@@ -164,6 +165,19 @@ class CountConfig(ConfigModel):
     mv_row_sigma_px: float = Field(0.0, ge=0, description="multiview: the one-to-one stereo assignment maximises "
                                                           "support x exp(-dv^2 / 2 sigma^2), dv = row difference of "
                                                           "the pair (px; 0 = support only)")
+    mv_appearance_weight: float = Field(0.0, ge=0, description="multiview: the stereo assignment also weighs "
+                                                                "each candidate by exp(beta (ncc - 1)), ncc = "
+                                                                "normalised cross-correlation of the two keypoints' "
+                                                                "colour context patches (needs descriptors: "
+                                                                "mv_desc_size > 0 when the views are prepared; "
+                                                                "0 = off)")
+    mv_appearance_min: float = Field(-1.0, ge=-1, le=1, description="multiview: drop stereo candidates whose "
+                                                                     "context ncc is below this (with "
+                                                                     "mv_appearance_weight > 0)")
+    mv_desc_size: float = Field(0.0, ge=0, description="multiview: half-width of the context patch of every "
+                                                       "keypoint, in median left detection sizes of its view "
+                                                       "(computed when the views are prepared; 0 = none)")
+    mv_desc_grid: int = Field(11, ge=2, description="multiview: cells per side of the context patch descriptor")
     mv_dup_size: float = Field(0.0, ge=0, description="multiview: left keypoints of one image closer than this "
                                                      "many times the smaller of their two detection sizes enter "
                                                      "the stereo assignment as one row (the group's best candidate "

@@ -492,6 +492,10 @@ class StereoKeypoints:
     right: np.ndarray
     left_size: np.ndarray
     left_disp: np.ndarray | None = None  # (N,) SGBM disparity at each left keypoint (px, NaN = none)
+    #: (N, D) / (M, D) appearance descriptors of the left / right keypoints (:func:`context_descriptors`:
+    #: zero-mean, unit-norm colour context patches, so a dot product is their normalised cross-correlation)
+    left_desc: np.ndarray | None = None
+    right_desc: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.left = np.asarray(self.left, float).reshape(-1, 2)
@@ -504,15 +508,73 @@ class StereoKeypoints:
             if len(self.left_disp) != len(self.left):
                 raise ValueError(f"StereoKeypoints: {len(self.left_disp)} disparities for {len(self.left)} "
                                  "left keypoints")
+        if (self.left_desc is None) != (self.right_desc is None):
+            raise ValueError("StereoKeypoints: descriptors for one image only")
+        if self.left_desc is not None:
+            self.left_desc = np.asarray(self.left_desc, np.float32).reshape(len(self.left), -1)
+            self.right_desc = np.asarray(self.right_desc, np.float32).reshape(len(self.right), -1)
+            if self.left_desc.shape[1] != self.right_desc.shape[1]:
+                raise ValueError(f"StereoKeypoints: left descriptors have {self.left_desc.shape[1]} values, "
+                                 f"right ones {self.right_desc.shape[1]}")
 
     @classmethod
     def from_detections(cls, left, right, disparity: np.ndarray | None = None,
-                        disp_radius_px: int = 2) -> StereoKeypoints:
+                        disp_radius_px: int = 2, images: tuple[np.ndarray, np.ndarray] | None = None,
+                        desc_size: float = 0.0, desc_grid: int = 11) -> StereoKeypoints:
         """From the left and right :class:`seedmap.records.Detections` of a view; with the view's
         SGBM ``disparity`` map (px, NaN = invalid) also the surface disparity at every left keypoint
-        (:func:`keypoint_disparity`, for the ``mv_surface_tol`` check)."""
+        (:func:`keypoint_disparity`, for the ``mv_surface_tol`` check); with the rectified ``images``
+        (left, right) and ``desc_size`` > 0 also every keypoint's appearance descriptor
+        (:func:`context_descriptors`, half-width ``desc_size`` x the view's median left detection size)."""
         ld = None if disparity is None else keypoint_disparity(disparity, left.keypoints, disp_radius_px)
-        return cls(left.keypoints, right.keypoints, 0.5 * (left.ellipses[:, 2] + left.ellipses[:, 3]), ld)
+        kp = cls(left.keypoints, right.keypoints, 0.5 * (left.ellipses[:, 2] + left.ellipses[:, 3]), ld)
+        if images is not None and desc_size > 0:
+            kp.describe(images[0], images[1], desc_size, desc_grid)
+        return kp
+
+    def describe(self, left_image: np.ndarray, right_image: np.ndarray, desc_size: float, grid: int = 11) -> None:
+        """Sets ``left_desc`` / ``right_desc`` (:func:`context_descriptors`) from the view's rectified
+        images; the patch half-width is ``desc_size`` x the view's median left detection size (7 px when
+        the view has no left detection)."""
+        r = desc_size * (float(np.median(self.left_size)) if len(self.left_size) else 7.0)
+        self.left_desc = context_descriptors(left_image, self.left, r, grid)
+        self.right_desc = context_descriptors(right_image, self.right, r, grid)
+
+
+def context_descriptors(image: np.ndarray, uv: np.ndarray, radius_px: float, grid: int = 11) -> np.ndarray:
+    """Appearance of the neighbourhood of every keypoint ``uv`` (N, 2) px: the (2 radius)^2 px square
+    around it, box-averaged to ``grid`` x ``grid`` cells per colour channel (bilinear samples of the
+    box-filtered image, so sub-pixel keypoints are honoured), made zero-mean and unit-norm -> (N,
+    grid^2 x channels) float32; the dot product of two is their normalised cross-correlation. A seed's
+    context (its neighbours, the rachis behind it) tells a true left/right pair from a neighbour on the
+    same row, which the seed alone does not (see step 1 of the module docstring)."""
+    import cv2
+
+    uv = np.asarray(uv, np.float32).reshape(-1, 2)
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    C = img.shape[2]
+    if len(uv) == 0:
+        return np.zeros((0, grid * grid * C), np.float32)
+    step = 2.0 * float(radius_px) / grid
+    k = max(1, int(round(step)))
+    sm = cv2.blur(img.astype(np.float32), (k, k)) if k > 1 else img.astype(np.float32)
+    sm = sm.reshape(img.shape[0], img.shape[1], C)
+    off = (np.arange(grid, dtype=np.float32) - 0.5 * (grid - 1)) * step
+    mx = (uv[:, 0, None, None] + off[None, None, :]).astype(np.float32)
+    my = (uv[:, 1, None, None] + off[None, :, None]).astype(np.float32)
+    mx, my = np.broadcast_to(mx, (len(uv), grid, grid)), np.broadcast_to(my, (len(uv), grid, grid))
+    # remap takes at most 32767 rows: sample the (N * grid, grid) map in chunks
+    out = np.empty((len(uv) * grid, grid, C), np.float32)
+    mx2, my2 = np.ascontiguousarray(mx.reshape(-1, grid)), np.ascontiguousarray(my.reshape(-1, grid))
+    for a in range(0, len(mx2), 30000):
+        smp = cv2.remap(sm, mx2[a:a + 30000], my2[a:a + 30000], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        out[a:a + 30000] = smp.reshape(len(smp), grid, C)
+    d = out.reshape(len(uv), -1)
+    d -= d.mean(axis=1, keepdims=True)
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.where(n > 1e-6, d / np.maximum(n, 1e-6), 0.0).astype(np.float32)
 
 
 def keypoint_disparity(disparity: np.ndarray, uv: np.ndarray, radius_px: int = 2) -> np.ndarray:
@@ -635,10 +697,10 @@ def merge_close_keypoints(kp: StereoKeypoints, r_px: float, size_factor: float =
             rl, rr = np.minimum(rl, r_px), min(rr, r_px)
         rmax = float(rl.max()) if len(rl) else 0.0
         lab, left = _merge_components(kp.left, max(rmax, 1e-9), rl)
-        _, right = _merge_components(kp.right, max(rr, 1e-9))
+        lab_r, right = _merge_components(kp.right, max(rr, 1e-9))
     else:
         lab, left = _merge_components(kp.left, r_px)
-        _, right = _merge_components(kp.right, r_px)
+        lab_r, right = _merge_components(kp.right, r_px)
     n = len(left)
     cnt = np.maximum(np.bincount(lab, minlength=n), 1)
     size = np.bincount(lab, weights=kp.left_size, minlength=n) / cnt
@@ -648,7 +710,18 @@ def merge_close_keypoints(kp: StereoKeypoints, r_px: float, size_factor: float =
         k = np.bincount(lab[ok], minlength=n)
         with np.errstate(invalid="ignore", divide="ignore"):
             disp = np.where(k > 0, np.bincount(lab[ok], weights=kp.left_disp[ok], minlength=n) / k, np.nan)
-    return StereoKeypoints(left, right, size, disp), lab
+    dl = dr = None
+    if kp.left_desc is not None:
+        dl, dr = _mean_desc(kp.left_desc, lab, n), _mean_desc(kp.right_desc, lab_r, len(right))
+    return StereoKeypoints(left, right, size, disp, dl, dr), lab
+
+
+def _mean_desc(d: np.ndarray, lab: np.ndarray, n: int) -> np.ndarray:
+    """Per-label mean of unit descriptors ``d``, re-normalised (merged keypoints)."""
+    m = np.zeros((n, d.shape[1]), np.float32)
+    np.add.at(m, lab, d)
+    nm = np.linalg.norm(m, axis=1, keepdims=True)
+    return (m / np.maximum(nm, 1e-6)).astype(np.float32)
 
 
 def _surface_consistent(d_match: np.ndarray, d_sgbm: np.ndarray, calib, tol_behind: float,
@@ -694,11 +767,20 @@ def _stereo_matches(views: list[StereoKeypoints | None], poses: np.ndarray, Tcw:
             out.append(empty)
             continue
         w = support
+        if cfg.mv_appearance_weight > 0 and kp.left_desc is not None:
+            # appearance: normalised cross-correlation of the two keypoints' context patches
+            ncc = np.einsum("ij,ij->i", kp.left_desc[c[:, 0]], kp.right_desc[c[:, 1]])
+            ok = ncc >= cfg.mv_appearance_min
+            c, Xw, support, ncc = c[ok], Xw[ok], support[ok], ncc[ok]
+            if len(c) == 0:
+                out.append(empty)
+                continue
+            w = support * np.exp(cfg.mv_appearance_weight * (ncc - 1.0))
         if cfg.mv_row_sigma_px > 0:
             # rank candidates by their epipolar (row) residual too: a true pair's rows differ by ~1 px,
             # a wrong partner anywhere within the (wide) row tolerance
             dv = kp.left[c[:, 0], 1] - kp.right[c[:, 1], 1]
-            w = support * np.exp(-0.5 * (dv / cfg.mv_row_sigma_px) ** 2)
+            w = w * np.exp(-0.5 * (dv / cfg.mv_row_sigma_px) ** 2)
         lab_l, lab_r = c[:, 0], c[:, 1]
         if cfg.mv_dup_size > 0:
             # left keypoints closer than mv_dup_size x their detection size look like one seed: such a

@@ -142,6 +142,7 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         from tqdm import tqdm
 
         bar = tqdm(total=len(ds), desc="views (SGBM + seeds)", unit="view")
+    count_cfg = cfg.count.for_detector(cfg.detector)  # (context descriptors for the multiview counter)
     for i in it:
         frame = ds[i]
         t0 = time.perf_counter()
@@ -165,7 +166,10 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         # they are nearly the same points, while the radius push-back adds view-dependent errors
         geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.surface_xyz)
         views.append(PreparedView(vc, so, geo, len(sdet.left),
-                                  StereoKeypoints.from_detections(sdet.left, sdet.right, disp)))
+                                  StereoKeypoints.from_detections(sdet.left, sdet.right, disp,
+                                                                  images=(frame.left, frame.right),
+                                                                  desc_size=count_cfg.mv_desc_size,
+                                                                  desc_grid=count_cfg.mv_desc_grid)))
     if bar is not None:
         bar.close()
     if all(v is None for v in views):
@@ -322,6 +326,38 @@ def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints |
     return out
 
 
+def save_descriptors(path: Path, kps: list[StereoKeypoints | None]) -> None:
+    """The keypoints' context descriptors (``descriptors.npz``, beside detections.csv, same order): per
+    view ``left_K`` / ``right_K`` int8 arrays (descriptor x 127; they are unit-norm, so no entry exceeds 1)."""
+    arrs = {"n_views": np.array(len(kps))}
+    for k, kp in enumerate(kps):
+        if kp is not None and kp.left_desc is not None:
+            arrs[f"left_{k}"] = np.round(kp.left_desc * 127).astype(np.int8)
+            arrs[f"right_{k}"] = np.round(kp.right_desc * 127).astype(np.int8)
+    np.savez_compressed(path, **arrs)
+
+
+def read_descriptors(path: Path, kps: list[StereoKeypoints | None]) -> None:
+    """Attach the descriptors of ``descriptors.npz`` (:func:`save_descriptors`) to ``kps`` in place
+    (re-normalised after the int8 rounding); a view whose keypoint counts differ is an error."""
+    try:
+        z = np.load(path)
+    except (OSError, ValueError) as e:
+        raise InputError(f"descriptors.npz is unreadable ({e})", path) from None
+    with z:
+        for k, kp in enumerate(kps):
+            if kp is None or f"left_{k}" not in z:
+                continue
+            dl, dr = z[f"left_{k}"].astype(np.float32), z[f"right_{k}"].astype(np.float32)
+            if len(dl) != len(kp.left) or len(dr) != len(kp.right):
+                raise InputError(f"descriptors.npz view {k}: {len(dl)}/{len(dr)} descriptors for "
+                                 f"{len(kp.left)}/{len(kp.right)} detections in detections.csv", path)
+            for d in (dl, dr):
+                n = np.linalg.norm(d, axis=1, keepdims=True)
+                d /= np.maximum(n, 1e-6)
+            kp.left_desc, kp.right_desc = dl, dr
+
+
 # ------------------------------------------------------------------------------------------------
 # writing
 # ------------------------------------------------------------------------------------------------
@@ -363,6 +399,8 @@ def write_results(rec: Reconstruction, out: Path, cfg: ReconConfig, metrics: dic
                           _csv("view,x,y,z,diameter_m,gt_seed_id,seed", obs, "%.7g"))
         if rec.keypoints is not None:
             atomic_write_text(tmp / "detections.csv", detections_csv_text(rec.keypoints))
+            if any(k is not None and k.left_desc is not None for k in rec.keypoints):
+                save_descriptors(tmp / "descriptors.npz", rec.keypoints)
         if rec.calib is not None:
             from seedmap.io.calibration import save_calib_yaml
 
@@ -550,8 +588,18 @@ def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
         if not c.is_file():
             raise InputError("calib.yaml not found (count method 'multiview' needs the calibration)", c)
         calib = read_calib_yaml(c)
-        return count_multiview(read_detections(results, len(poses)), poses, calib,
-                               cfg.count.for_detector(cfg.detector))
+        kps = read_detections(results, len(poses))
+        ccfg = cfg.count.for_detector(cfg.detector)
+        d = Path(results) / "descriptors.npz"
+        if ccfg.mv_appearance_weight > 0:
+            if d.is_file():
+                read_descriptors(d, kps)
+            else:
+                import warnings
+
+                warnings.warn(f"{d}: not found, so the stereo assignment runs without the appearance term "
+                              "(count.mv_appearance_weight); re-run `seedmap reconstruct` to write it", stacklevel=2)
+        return count_multiview(kps, poses, calib, ccfg)
     if cfg.count.method == "rays":
         from seedmap.io.trajectory import read_tum
 
