@@ -106,11 +106,16 @@ def _run(args: list[str], monkeypatch) -> int:
     return int(e.value.code or 0)
 
 
-def test_fast_reconstruction_writes_descriptors_and_count_reuses_them(tmp_path, monkeypatch):
+def test_reconstruction_writes_descriptors_and_count_reuses_them(tmp_path, monkeypatch):
     data, res = tmp_path / "p4", tmp_path / "r4"
     assert _run(["simulate", "panicle", "--seed", "4", "--views", "6", "--out", str(data), "-q",
                  "--set", "sim.camera.scale=0.18"], monkeypatch) == 0
-    assert _run(["reconstruct", str(data), "--register", "seeds", "--detector", "fast", "--out", str(res), "-q"],
+    on = ["--set", "count.mv_desc_size=6", "--set", "count.mv_desc_grid=15", "--set", "count.mv_appearance_weight=5"]
+    # off by default: no descriptors are computed or written
+    assert _run(["reconstruct", str(data), "--register", "seeds", "--detector", "fast", "--out", str(tmp_path / "r0"),
+                 "-q"], monkeypatch) == 0
+    assert not (tmp_path / "r0" / "descriptors.npz").exists()
+    assert _run(["reconstruct", str(data), "--register", "seeds", "--detector", "fast", "--out", str(res), "-q", *on],
                 monkeypatch) == 0
     n = json.loads((res / "metrics.json").read_text())["seed_count"]
     assert n > 20
