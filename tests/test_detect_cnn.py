@@ -156,3 +156,27 @@ def test_training_can_start_from_shipped_weights(cnn_range, tmp_path):
         train_cnn([cnn_range.root], tmp_path / "o2", None,
                   CnnTrainConfig(steps=1, init_weights=str(tmp_path / "none.onnx")), progress=False)
     assert not (tmp_path / "o2").exists()  # a bad --init leaves no empty output folder behind
+
+
+def test_box_nms_drops_overlapping_weaker_peaks(cnn_range):
+    from seedmap.detect.cnn import box_nms
+
+    boxes = np.array([[0, 0, 10, 10], [1, 0, 11, 10], [20, 20, 28, 28], [0, 0, 10, 10]], float)
+    scores = np.array([0.6, 0.9, 0.5, 0.3])
+    assert box_nms(boxes, scores, 0.5).tolist() == [1, 2]  # IoU(0, 1) = 0.82: the weaker one goes
+    assert box_nms(boxes, scores, 0.9).tolist() == [0, 1, 2]  # 0 and 3 coincide (IoU 1)
+    # in the detector (opt-in): a subset of the detections without it, no two kept boxes overlapping more
+    img = cnn_range[2].left
+    off = make_detector("fast-cnn", overrides=["cnn.threshold=0.3"]).detect(img)
+    on = make_detector("fast-cnn", overrides=["cnn.threshold=0.3", "cnn.nms_iou=0.2"]).detect(img)
+    assert 0.5 * len(off) < len(on) < len(off)
+    kp_off = {tuple(k) for k in np.round(off.keypoints, 4).tolist()}
+    assert all(tuple(k) in kp_off for k in np.round(on.keypoints, 4).tolist())
+    b = on.boxes
+    x0, y0 = np.maximum(b[:, None, 0], b[None, :, 0]), np.maximum(b[:, None, 1], b[None, :, 1])
+    x1, y1 = np.minimum(b[:, None, 2], b[None, :, 2]), np.minimum(b[:, None, 3], b[None, :, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    iou = inter / (area[:, None] + area[None, :] - inter)
+    np.fill_diagonal(iou, 0)
+    assert iou.max() <= 0.2 + 1e-6

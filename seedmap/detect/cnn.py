@@ -39,6 +39,10 @@ box-IoU non-maximum suppression of the peaks (cv2.dnn.NMSBoxes at IoU 0.3 / 0.4 
 0.900 / 0.899), a constant added to all four predicted edges before rounding (+-0.1 px: 0.897 / 0.887), a
 higher threshold for small predicted boxes (no change: false positives on slivers get whole-seed-sized
 boxes), threshold 0.5 (0.901 on det_s36 but 0.880 vs 0.883 on the second validation range det_s45).
+Session 11 (arm scans, ``fast_cnn_arm.onnx``): box NMS of the peaks is available as ``nms_iou`` (off). With it a
+lower threshold reaches more of the countable seeds at the same duplicate rate (six tuning panicles, threshold 0.25 +
+NMS at IoU 0.2: 91.5 % reachable / 12.1 % duplicates vs 85.3 / 12.9 % at 0.40 without), but the seed counts got worse
+at every setting tried (``benchmarks/count_reach.py``; README, panicle reconstruction, session 11).
 Session 7: ``smooth`` 0 / 1 / 16 instead of 4: det_s36 F1 0.895 / 0.896 / 0.896 vs 0.898 (a sliver's peak pixel
 itself predicts the too-large box; ``benchmarks/detect_errors.py --set cnn.smooth=S``).
 """
@@ -290,5 +294,17 @@ class CnnDetector(Detector):
         ell = np.stack([xs + dx, ys + dy, np.maximum(bw, bh), np.minimum(bw, bh),
                         np.where(bw >= bh, 0.0, 90.0)], axis=1)
         score = 1.0 / (1.0 + np.exp(-logit))
+        if c.nms_iou > 0 and len(score) > 1:
+            k = box_nms(boxes, score, c.nms_iou)
+            boxes, score, ell = boxes[k], score[k], ell[k]
         return Detections(boxes=boxes, scores=score, ellipses=ell)
+
+
+def box_nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> np.ndarray:
+    """Indices (ascending) of the boxes (N, 4) x0, y0, x1, y1 kept by greedy non-maximum suppression at
+    ``iou`` (cv2.dnn.NMSBoxes, strongest first)."""
+    b = np.asarray(boxes, np.float64)
+    rects = np.column_stack([b[:, 0], b[:, 1], b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]]).tolist()
+    k = cv2.dnn.NMSBoxes(rects, np.asarray(scores, np.float64).tolist(), 0.0, float(iou))
+    return np.sort(np.asarray(k, np.int64).reshape(-1))
 

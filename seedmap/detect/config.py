@@ -136,6 +136,10 @@ class CnnConfig(ConfigModel):
     smooth: float = 4.0
     #: peak test: heat logit maximal over the 3x3 square (3) or the 5x5 disk (5)
     peak_window: int = 3
+    #: box non-maximum suppression of the peaks: a peak whose box overlaps a stronger peak's box with IoU above
+    #: this is dropped (cv2.dnn.NMSBoxes; 0 = off). Arm scans: a second peak on one seed is the main source of
+    #: ghost seeds in the count, and a low threshold with NMS finds more seeds at the same duplicate rate
+    nms_iou: float = Field(0.0, ge=0, le=1)
     #: run the network on the image resized by this factor (seeds larger than the ~5 px training seeds,
     #: e.g. close-up arm scans, brought to the training size); outputs mapped back to input pixels
     scale: float = Field(1.0, gt=0, le=4)
