@@ -4,8 +4,8 @@ For every simulated arm scan ``DATA_DIR/pSEED``: run the reconstruction's detect
 plus ``--detector-set``) once at the lowest of ``--thresholds``, label every left and right keypoint with the GT
 seed under it (``gt/masks`` + ``gt/instances``), and report per threshold
 
-- ``reachable_pct``: countable seeds (>= 12 px in the left and right image of >= 2 views, as the count
-  benchmark) with a keypoint in the left AND the right image of >= 2 views -- what a counter can count;
+- ``reachable_pct``: countable seeds (>= ``--min-area`` px, default 12, in the left and right image of >= 2 views,
+  as the count benchmark) with a keypoint in the left AND the right image of >= 2 views -- what a counter can count;
 - ``dup_pct``: left keypoints that are a second (third...) keypoint on a seed of the same image;
 - ``background_pct``: left keypoints on no seed.
 
@@ -41,14 +41,14 @@ def keypoint_seed_ids(root: Path, side: str, view: int, uv: np.ndarray) -> np.nd
     return lut[m[v, u]]
 
 
-def reach(root: Path, thresholds: list[float], detector_set: list[str]) -> dict:
+def reach(root: Path, thresholds: list[float], detector_set: list[str], min_area: int = 12) -> dict:
     from seedmap.detect import make_detector
     from seedmap.io.seedmap_dataset import SeedmapDataset
     from seedmap.recon.config import ReconConfig
     from seedmap.recon.pipeline import gt_countable_seeds
 
     ds = SeedmapDataset(root)
-    countable = set(np.asarray(gt_countable_seeds(root, 12)).tolist())
+    countable = set(np.asarray(gt_countable_seeds(root, min_area)).tolist())
     cfg = ReconConfig(detector="fast")
     over = list(cfg.detector_overrides) + list(detector_set) + [f"cnn.threshold={min(thresholds)}"]
     det = make_detector("fast", dataset=ds, overrides=over)
@@ -81,6 +81,9 @@ def main() -> None:
     ap.add_argument("--data-dir", type=Path, default=Path("data/recon_s7"))
     ap.add_argument("--thresholds", default="0.4", help="comma-separated CNN thresholds (default: the pipeline's 0.4)")
     ap.add_argument("--detector-set", nargs="*", default=[], help="detector overrides appended to the pipeline's")
+    ap.add_argument("--min-area", type=int, default=12,
+                    help="countable = >= this many visible px in the left and right image of >= 2 views (the count "
+                         "benchmark's reference uses 12)")
     ap.add_argument("--errors", type=Path, nargs="*", default=[],
                     help="bench_recon.py summary JSONs with the signed count error per panicle")
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/count_reach.json"))
@@ -88,8 +91,9 @@ def main() -> None:
     from tqdm import tqdm
 
     thr = [float(x) for x in a.thresholds.split(",")]
-    rows = {s: reach(a.data_dir / f"p{s}", thr, a.detector_set) for s in tqdm(a.panicles, desc="panicles")}
-    res: dict = {"data_dir": str(a.data_dir), "detector_set": a.detector_set, "per_panicle": rows}
+    rows = {s: reach(a.data_dir / f"p{s}", thr, a.detector_set, a.min_area) for s in tqdm(a.panicles, desc="panicles")}
+    res: dict = {"data_dir": str(a.data_dir), "detector_set": a.detector_set, "min_area": a.min_area,
+                 "per_panicle": rows}
     for t in map(str, thr):
         r = np.array([rows[s][t]["reachable_pct"] for s in a.panicles])
         res[f"threshold_{t}"] = {"reachable_pct_mean": float(r.mean()), "reachable_pct_std": float(r.std()),
