@@ -82,8 +82,8 @@ for many seed-sized patches and has heavy tails, which made ghost and missing se
    dropped. On the arm scans (baseline 0.11 m at 0.27 m, so the two images see a seed ~25 degrees apart) the
    seed alone looks alike in both images, its neighbourhood does not: over the stereo candidates of panicle
    96 (``fast`` keypoints labelled with the GT seed under them) ncc tells a true pair from a wrong one with
-   AUC 0.79 / 0.83 / 0.87 for grey patches of 23 / 31 / 51 px and 0.895 for 61-px colour patches (the row
-   residual: 0.82). Chosen on tuning panicles 95-99, 111-115 and red 310-315 only (size 6, grid 15, beta 5:
+   AUC 0.78 / 0.83 / 0.87 for grey patches of 23 / 31 / 51 px, 0.895 for 61-px colour patches and 0.88 with
+   the setting below (the row residual: 0.82; benchmarks/stereo_ncc_auc.py). Chosen on tuning panicles 95-99, 111-115 and red 310-315 only (size 6, grid 15, beta 5:
    MAPE 5.32 -> 4.53 %), it raised the count of every held-out panicle by 2.8 +- 1.2 points without
    narrowing the spread (95 panicles: std of the signed error unchanged), so it is in no profile. The
    per-panicle spread follows the detector's recall: on the under-counted panicles only 78-81 % of the
