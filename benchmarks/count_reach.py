@@ -110,10 +110,10 @@ def main() -> None:
                                           float(np.corrcoef(rr, e)[0, 1]),
                                           "fit_error_vs_reachable": np.polyfit(rr, e, 1).tolist()})
         print(f"threshold {t}: {res[f'threshold_{t}']}")
+    from seedmap.io.atomic import atomic_write_text
+
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = a.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(res, indent=1))
-    tmp.replace(a.out)
+    atomic_write_text(a.out, json.dumps(res, indent=1))
     print(f"wrote {a.out}")
 
 

@@ -79,10 +79,10 @@ def main() -> None:
         res["per_panicle"][s] = row
         print(f"p{s}: " + ", ".join(f"{k} {v:.3f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()
                                     if not k.startswith("ncc_median")), flush=True)
+    from seedmap.io.atomic import atomic_write_text
+
     a.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = a.out.with_suffix(".tmp")
-    tmp.write_text(json.dumps(res, indent=1))
-    tmp.replace(a.out)
+    atomic_write_text(a.out, json.dumps(res, indent=1))
     print(f"wrote {a.out}")
 
 
