@@ -11,8 +11,8 @@ import sys
 import cv2
 import numpy as np
 import pytest
-from test_recon_count_pairing import _correct_pairs
-from test_recon_multiview import CALIB, scan  # pytest puts tests/ on sys.path
+from test_recon_count_pairing import _correct_pairs, wide_row_scan  # pytest puts tests/ on sys.path
+from test_recon_multiview import CALIB
 
 from seedmap import cli
 from seedmap.errors import InputError
@@ -67,11 +67,7 @@ def _with_seed_descriptors(views, ids_l, ids_r, rng, dim: int = 64, noise: float
 def test_appearance_term_prefers_the_partner_that_looks_alike():
     # a wide row tolerance (8 px) admits the neighbouring seeds' right keypoints; their appearance
     # differs, so weighting the assignment by the descriptors' correlation picks the true partner
-    rng = np.random.default_rng(11)
-    views, poses, ids_l, countable, _ = scan(rng, noise_px=0.5)
-    ids_r = scan.ids_r
-    base = CountConfig(mv_stereo_dv_px=8.0)
-    _, d0 = count_multiview(views, poses, CALIB, base, detail=True)
+    rng, views, poses, ids_l, ids_r, base, d0 = wide_row_scan()
     _with_seed_descriptors(views, ids_l, ids_r, rng)
     # descriptors alone change nothing while the weight is 0
     _, dz = count_multiview(views, poses, CALIB, base, detail=True)
