@@ -225,7 +225,11 @@ class CnnDetector(Detector):
         return StereoDetections(index=frame.index, timestamp=frame.timestamp, left=left.result(), right=right)
 
     def _run(self, x: np.ndarray) -> np.ndarray:
-        return self.sess.run(None, {"image": x})[0]
+        out = self.sess.run(None, {"image": x})[0]
+        if not self.cfg.flip_tta:
+            return out
+        back = unmirror(self.sess.run(None, {"image": np.ascontiguousarray(x[..., ::-1])})[0])
+        return 0.5 * (out + back)
 
     def detect(self, image: np.ndarray) -> Detections:
         """Seeds in one RGB image: boxes, sigmoid scores, keypoints (ellipse centres).
@@ -298,6 +302,17 @@ class CnnDetector(Detector):
             k = box_nms(boxes, score, c.nms_iou)
             boxes, score, ell = boxes[k], score[k], ell[k]
         return Detections(boxes=boxes, scores=score, ellipses=ell)
+
+
+def unmirror(out: np.ndarray) -> np.ndarray:
+    """The network's output ``(N, 7, H, W)`` on a left-right mirrored input, brought back to the input's pixels.
+
+    Pixel x of the mirrored input is pixel W - 1 - x of the input. The box edges are pixel counts with x0
+    inclusive and x1 exclusive (left = x - x0, right = x1 - x), so the mirrored prediction's right edge is this
+    pixel's left edge + 1 and its left edge this pixel's right edge - 1, and the keypoint offset dx changes
+    sign. Channels: heat logit, l, t, r, b, dx, dy."""
+    m = out[..., ::-1]
+    return np.stack([m[:, 0], m[:, 3] - 1.0, m[:, 2], m[:, 1] + 1.0, m[:, 4], -m[:, 5], m[:, 6]], axis=1)
 
 
 def box_nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> np.ndarray:

@@ -143,6 +143,10 @@ class CnnConfig(ConfigModel):
     #: run the network on the image resized by this factor (seeds larger than the ~5 px training seeds,
     #: e.g. close-up arm scans, brought to the training size); outputs mapped back to input pixels
     scale: float = Field(1.0, gt=0, le=4)
+    #: test-time augmentation: the network also runs on the tiles mirrored left-right and the two outputs are
+    #: averaged (heat logits, box edges with left and right swapped, keypoint offsets): 2x the network's CPU.
+    #: Up-down mirroring is not offered: training mirrors left-right only, and the keypoint error grew with it
+    flip_tta: bool = False
     #: tiles per onnxruntime call
     batch: int = 32
     #: onnxruntime intra-op threads (0 = onnxruntime's default: all cores, which spin-wait and cost
