@@ -5,13 +5,14 @@ Detectors: ``fast-classic`` (session 2) at full and half resolution, and the ``f
 and per stereo frame with the left and right image in sequence or concurrently (``cnn.stereo_threads``);
 ``--cnn-weights OTHER.onnx`` adds the same rows for a second network (e.g. the previous weights); repeat it to
 time several candidates against the shipped network in one run (their CPU ratios then share one baseline).
+``--cnn-set KEY=VALUE`` adds the rows for the shipped network with a detector override (e.g. ``cnn.flip_tta=true``).
 
 The baseline (a 5x5-sigma-2 Gaussian blur of the same RGB image) is timed in the same run, so the
 ratio ``detector_ms / blur_ms`` is comparable across machines and loads. Also times one training
 iteration of the full-width VGG16 Faster R-CNN and of pix2pix on CPU, to estimate full training time.
 
     .venv/bin/python benchmarks/bench_detect.py [--dataset data/det_s2] [--no-learned] [--repeats 10]
-        [--cnn-weights OTHER.onnx ...] [--interleave 40]
+        [--cnn-weights OTHER.onnx ...] [--cnn-set cnn.flip_tta=true ...] [--interleave 40]
 
 Writes benchmarks/results/bench_detect.json.
 """
@@ -118,6 +119,8 @@ def main() -> None:
     ap.add_argument("--no-learned", action="store_true")
     ap.add_argument("--cnn-weights", action="append", default=[],
                     help="another fast_cnn.onnx to time next to the shipped one (repeatable: several in one run)")
+    ap.add_argument("--cnn-set", action="append", default=[],
+                    help="also time the shipped network with this detector override (key=value; repeatable)")
     ap.add_argument("--interleave", type=int, default=0,
                     help="also time the shipped and every --cnn-weights network round-robin for this many rounds "
                          "(1 thread; CPU ms per image, median) and report each one's ratio to the shipped network")
@@ -129,7 +132,8 @@ def main() -> None:
     from seedmap.detect.config import CnnConfig, FastConfig
 
     rows = []
-    cnn_sets = [("", [])] + [(f" [{w}]", [f"cnn.weights={w}"]) for w in a.cnn_weights]
+    cnn_sets = ([("", [])] + [(f" [{w}]", [f"cnn.weights={w}"]) for w in a.cnn_weights]
+                + [(f" [{o}]", [o]) for o in a.cnn_set])
     for scale in (1.0, 0.5):
         w, h = int(round(1434 * scale)), int(round(1050 * scale))
         img, src = _image(a.dataset, w, h)

@@ -6,6 +6,7 @@ rename) together with its resolved config. User errors print one line and exit w
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 from typing import List, Optional
@@ -268,6 +269,54 @@ def train_fast_refiner_cmd(
     ref.save(out)
     typer.echo(f"refiner written to {out} ({len(x)} candidates, {s.mean():.0%} seeds; "
                f"loss {ref.info['loss_first_100']:.3f} -> {ref.info['loss_last_100']:.3f})")
+
+
+@train_app.command("cnn-refiner")
+def train_cnn_refiner_cmd(
+    data: List[Path] = typer.Argument(..., help="Simulated training datasets with GT masks (e.g. data/det_s40)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for cnn_refiner.onnx (+ .safetensors) and metrics.json."),
+    val: Optional[List[Path]] = typer.Option(None, "--val", help="Validation datasets: box F1 per threshold."),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="The fast_cnn network whose peaks it refines "
+                                                                   "(default: the shipped field network)."),
+    candidates: float = typer.Option(0.25, "--candidates", help="The network's peak threshold for candidates."),
+    patch_r: int = typer.Option(6, "--patch-r", help="Half size of the RGB patch (px)."),
+    hidden: str = typer.Option("128,64", "--hidden", help="Hidden layer widths, comma-separated."),
+    steps: int = typer.Option(30000, "--steps", help="Training steps (batch 512)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and batches."),
+    thresholds: str = typer.Option("0.25,0.3,0.35,0.4,0.45", "--thresholds",
+                                   help="--val: refined-score thresholds to report."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing refiner in OUT."),
+) -> None:
+    """Train the fast CNN's learned second stage (rescoring + box residual per heatmap peak; torch on CPU).
+
+    The defaults reproduce the shipped refiner (README, seed detection, session 12)."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.detect.cnn_refine import CnnRefinerTrainConfig, train_cnn_refiner, validate
+    from seedmap.io.atomic import atomic_write_text
+
+    for d in list(data) + list(val or []):
+        if not d.is_dir():
+            raise SeedmapError(f"{d}: dataset folder not found")
+    target = out / "cnn_refiner.safetensors"
+    if target.exists() and not overwrite:
+        raise SeedmapError(f"{target} exists (use --overwrite to replace it)")
+    try:
+        hid = tuple(int(v) for v in hidden.split(",") if v.strip())
+        ts = [float(v) for v in thresholds.split(",") if v.strip()]
+    except ValueError:
+        raise SeedmapError(f"--hidden {hidden!r} / --thresholds {thresholds!r}: comma-separated numbers expected") from None
+    cfg = CnnRefinerTrainConfig(candidates=candidates, patch_r=patch_r, hidden=hid, steps=steps, seed=seed)
+    out.mkdir(parents=True, exist_ok=True)
+    onnx_path = train_cnn_refiner(list(data), target, cfg, weights)
+    metrics = {"refiner": str(onnx_path), "train": [str(d) for d in data]}
+    if val:
+        metrics["validation"] = validate(list(val), onnx_path, ts, weights)
+        for k, v in metrics["validation"]["pooled"].items():
+            typer.echo(f"validation {k}: P {v['precision']:.4f} R {v['recall']:.4f} F1 {v['f1']:.4f}")
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+    typer.echo(f"cnn-refiner written to {onnx_path} (weights and config: {target})")
 
 
 @train_app.command("fast-cnn")

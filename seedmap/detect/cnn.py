@@ -50,6 +50,7 @@ itself predicts the too-large box; ``benchmarks/detect_errors.py --set cnn.smoot
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -88,6 +89,29 @@ def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
         if shipped.is_file():
             return shipped
     return p
+
+
+def load_refiner(cfg: CnnConfig, cnn_path: Path, explicit_weights: bool = False):  # noqa: ANN201 - CnnRefiner | None
+    """The second stage ``cfg.refiner`` asks for, checked against the network ``cnn_path`` (None = off)."""
+    from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path
+
+    name = (cfg.refiner or "none").strip()
+    if name.lower() == "none":
+        return None
+    if name.lower() == "auto":
+        shipped = not explicit_weights and cfg.weights is None and cfg.domain == "field"
+        p = default_cnn_refiner_path()
+        if not (shipped and p.is_file()):
+            return None
+        ref = CnnRefiner.load(p)
+        ref.check_network(cnn_path)
+        return ref
+    p = Path(name)
+    if p.parent == Path(".") and not p.is_file() and (Path(__file__).with_name("weights") / p.name).is_file():
+        p = Path(__file__).with_name("weights") / p.name
+    ref = CnnRefiner.load(p)
+    ref.check_network(cnn_path)
+    return ref
 
 
 def load_session(path: str | Path, threads: int = 0):  # noqa: ANN201 - onnxruntime.InferenceSession
@@ -202,10 +226,13 @@ class CnnDetector(Detector):
         if self.cfg.tile and (self.cfg.tile % 2 or self.cfg.margin % 2):
             raise ConfigError(f"cnn.tile ({self.cfg.tile}) and cnn.margin ({self.cfg.margin}) must be even "
                               "(the network halves the resolution)")
-        #: the peak threshold in use (cnn.threshold)
-        self.threshold = float(self.cfg.threshold)
         self.path = cnn_weights_path(self.cfg, weights)
         self.sess = load_session(self.path, self.cfg.threads)
+        self.refiner = load_refiner(self.cfg, self.path, explicit_weights=weights is not None)
+        #: the score a detection needs (cnn.threshold; cnn.refine_threshold with a refiner) ...
+        self.threshold = float(self.cfg.refine_threshold if self.refiner else self.cfg.threshold)
+        #: ... and the heatmap peak threshold that makes the candidates
+        self.peak_threshold = float(self.cfg.refine_candidates if self.refiner else self.cfg.threshold)
         meta = self.sess.get_modelmeta().custom_metadata_map
         self.info = json.loads(meta.get("info", "{}"))
         self.kernel = peak_kernel(int(self.cfg.peak_window))
@@ -251,7 +278,17 @@ class CnnDetector(Detector):
         return Detections(boxes=boxes, scores=d.scores, ellipses=ell)
 
     def _detect(self, img: np.ndarray) -> Detections:
-        """The network's detections in ``img`` at its own resolution."""
+        """The network's detections in ``img`` at its own resolution (refined, with a refiner)."""
+        pk = self.peaks(img)
+        if self.refiner is not None and len(pk):
+            raw = self.refiner.refine(img, pk.x, pk.y, pk.raw)
+            t = min(max(self.threshold, 1e-6), 1 - 1e-6)
+            keep = raw[:, 0] >= np.log(t / (1 - t))
+            pk = CnnPeaks(pk.x[keep], pk.y[keep], raw[keep])
+        return self.to_detections(pk, img.shape[:2])
+
+    def peaks(self, img: np.ndarray) -> CnnPeaks:
+        """The heatmap peaks above ``peak_threshold`` in ``img`` with the network's raw predictions there."""
         from seedmap.detect.fast import seediness
 
         h, w = img.shape[:2]
@@ -262,7 +299,7 @@ class CnnDetector(Detector):
             # even size for the stride-2 body, 1 px border so peaks at the image edge have neighbours
             ph, pw = h + h % 2 + 2, w + w % 2 + 2
             x = np.pad(x, ((0, 0), (0, 0), (1, ph - h - 1), (1, pw - w - 1)))
-            d = decode(self._run(np.ascontiguousarray(x)), self.threshold, (1, h + 1, 1, w + 1), c.smooth, self.kernel)
+            d = decode(self._run(np.ascontiguousarray(x)), self.peak_threshold, (1, h + 1, 1, w + 1), c.smooth, self.kernel)
             parts.append((d[1:], d[1] - 1, d[2] - 1))
         else:
             g = self.fast_cfg.max_green_excess / 16.0 if self.fast_cfg.max_green_excess > 0 else 0.0
@@ -278,17 +315,24 @@ class CnnDetector(Detector):
                 tb = tiles[k0:k0 + bs]
                 x = np.stack([pad[ty * t: ty * t + s, tx * t: tx * t + s] for ty, tx in tb])
                 x = np.ascontiguousarray((x.astype(np.float32) * (1.0 / 255.0)).transpose(0, 3, 1, 2))
-                d = decode(self._run(x), self.threshold, (m, m + t, m, m + t), c.smooth, self.kernel)
+                d = decode(self._run(x), self.peak_threshold, (m, m + t, m, m + t), c.smooth, self.kernel)
                 # image pixel = tile origin (minus the margin) + position in the padded window
                 parts.append((d[1:], d[1] + tb[d[0], 1] * t - m, d[2] + tb[d[0], 0] * t - m))
         if sum(len(p[1]) for p in parts) == 0:
-            return Detections()
+            return CnnPeaks.empty()
         xs = np.concatenate([p[1] for p in parts]).astype(np.float64)
         ys = np.concatenate([p[2] for p in parts]).astype(np.float64)
-        logit, l, tp, r, b, dx, dy = (np.concatenate([p[0][k] for p in parts]).astype(np.float64)
-                                      for k in range(2, 9))
+        raw = np.stack([np.concatenate([p[0][k] for p in parts]).astype(np.float64) for k in range(2, 9)], axis=1)
         keep = (xs < w) & (ys < h)
-        xs, ys, logit, l, tp, r, b, dx, dy = (a[keep] for a in (xs, ys, logit, l, tp, r, b, dx, dy))
+        return CnnPeaks(xs[keep], ys[keep], raw[keep])
+
+    def to_detections(self, pk: CnnPeaks, shape: tuple[int, int]) -> Detections:
+        """Boxes (whole pixels, clipped to the image of ``shape`` (h, w)), scores and keypoints of the peaks."""
+        if len(pk) == 0:
+            return Detections()
+        h, w = shape
+        xs, ys = pk.x, pk.y
+        logit, l, tp, r, b, dx, dy = pk.raw.T
         x0 = xs - np.round(np.maximum(l, 0))
         y0 = ys - np.round(np.maximum(tp, 0))
         x1 = np.maximum(xs + np.round(np.maximum(r, 0)), x0 + 1)
@@ -298,10 +342,27 @@ class CnnDetector(Detector):
         ell = np.stack([xs + dx, ys + dy, np.maximum(bw, bh), np.minimum(bw, bh),
                         np.where(bw >= bh, 0.0, 90.0)], axis=1)
         score = 1.0 / (1.0 + np.exp(-logit))
-        if c.nms_iou > 0 and len(score) > 1:
-            k = box_nms(boxes, score, c.nms_iou)
+        if self.cfg.nms_iou > 0 and len(score) > 1:
+            k = box_nms(boxes, score, self.cfg.nms_iou)
             boxes, score, ell = boxes[k], score[k], ell[k]
         return Detections(boxes=boxes, scores=score, ellipses=ell)
+
+
+@dataclass
+class CnnPeaks:
+    """Heatmap peaks of one image: pixel ``x``, ``y`` (N,) and the network's raw predictions there, ``raw`` (N, 7):
+    heat logit, box edges left, top, right, bottom (px from the pixel), keypoint offset dx, dy (px)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    raw: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    @staticmethod
+    def empty() -> CnnPeaks:
+        return CnnPeaks(np.zeros(0), np.zeros(0), np.zeros((0, 7)))
 
 
 def unmirror(out: np.ndarray) -> np.ndarray:

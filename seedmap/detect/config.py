@@ -143,6 +143,14 @@ class CnnConfig(ConfigModel):
     #: run the network on the image resized by this factor (seeds larger than the ~5 px training seeds,
     #: e.g. close-up arm scans, brought to the training size); outputs mapped back to input pixels
     scale: float = Field(1.0, gt=0, le=4)
+    #: learned second stage (seedmap.detect.cnn_refine: every peak rescored and its box corrected): ``auto`` = the
+    #: shipped refiner when the shipped field network runs (off for other networks), ``none`` = off, or a refiner
+    #: file trained for the network in use (``seedmap train cnn-refiner``; a bare shipped file name works too)
+    refiner: str = "none"
+    #: with a refiner: the network's peak threshold that makes the candidates ...
+    refine_candidates: float = Field(0.25, gt=0, lt=1)
+    #: ... and the refined seed probability a detection needs (replaces ``threshold``)
+    refine_threshold: float = Field(0.30, gt=0, lt=1)
     #: test-time augmentation: the network also runs on the tiles mirrored left-right and the two outputs are
     #: averaged (heat logits, box edges with left and right swapped, keypoint offsets): 2x the network's CPU.
     #: Up-down mirroring is not offered: training mirrors left-right only, and the keypoint error grew with it

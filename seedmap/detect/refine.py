@@ -66,11 +66,16 @@ def candidate_features(f: np.ndarray, det: Detections, r: int = PATCH_R) -> tupl
 
 @dataclass
 class Refiner:
-    """MLP weights (``w0 b0 w1 b1 w2 b2``; ``x @ w + b``, ReLU between) and the patch radius."""
+    """MLP weights (``w0 b0 w1 b1 w2 b2``; ``x @ w + b``, ReLU between) and the patch radius.
+
+    ``kind``: which candidates it was trained on -- ``fast_refiner`` (the classical detector's regions, this
+    module) or ``cnn_refiner`` (the CNN's heatmap peaks, :mod:`seedmap.detect.cnn_refine`); a file of one kind is
+    refused where the other is expected."""
 
     layers: list[tuple[np.ndarray, np.ndarray]]
     patch_r: int = PATCH_R
     info: dict | None = None
+    kind: str = "fast_refiner"
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """``(N, 5)``: 4 box-edge offsets (/ 5 px, relative to the region box) and the seed logit."""
@@ -108,23 +113,29 @@ class Refiner:
         for k, (w, b) in enumerate(self.layers):
             t[f"w{k}"] = np.ascontiguousarray(w, np.float32)
             t[f"b{k}"] = np.ascontiguousarray(b, np.float32)
-        meta = {"seedmap_kind": "fast_refiner", "patch_r": str(self.patch_r), "info": json.dumps(self.info or {})}
+        meta = {"seedmap_kind": self.kind, "patch_r": str(self.patch_r), "info": json.dumps(self.info or {})}
         atomic_write_bytes(Path(path), save(t, metadata=meta))
         return Path(path)
 
     @classmethod
-    def load(cls, path: str | Path) -> Refiner:
+    def load(cls, path: str | Path, kind: str = "fast_refiner") -> Refiner:
         from seedmap.io.tensors import read_safetensors
 
         p = Path(path)
         if not p.is_file():
-            raise InputError("fast refiner weights not found", p)
+            raise InputError(f"{kind.replace('_', ' ')} weights not found", p)
         t, meta = read_safetensors(p)
-        if meta.get("seedmap_kind") != "fast_refiner":
-            raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected fast_refiner", p)
+        if meta.get("seedmap_kind") != kind:
+            raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected {kind}", p)
         n = len([k for k in t if k.startswith("w")])
+        if n == 0 or any(f"b{k}" not in t for k in range(n)):
+            raise InputError(f"{kind} weights lack their layers (w0, b0, ...)", p)
         layers = [(t[f"w{k}"].astype(np.float32), t[f"b{k}"].astype(np.float32)) for k in range(n)]
-        return cls(layers, int(meta.get("patch_r", PATCH_R)), json.loads(meta.get("info", "{}")))
+        for k in range(n):
+            w, b = layers[k]
+            if w.ndim != 2 or b.shape != (w.shape[1],) or (k and w.shape[0] != layers[k - 1][0].shape[1]):
+                raise InputError(f"{kind} layer {k} has shape {w.shape} / {b.shape}, which does not chain", p)
+        return cls(layers, int(meta.get("patch_r", PATCH_R)), json.loads(meta.get("info", "{}")), kind)
 
 
 def training_samples(dataset: str | Path, frames: list[int] | None, config=None, min_gt_area: int = 6,
@@ -171,8 +182,17 @@ def training_samples(dataset: str | Path, frames: list[int] | None, config=None,
 
 
 def train_refiner(x: np.ndarray, y: np.ndarray, is_seed: np.ndarray, steps: int = 3000, hidden: tuple = (96, 64),
-                  lr: float = 2e-3, batch: int = 512, seed: int = 0) -> Refiner:
-    """Fit the MLP (torch, CPU): BCE on ``is_seed`` + smooth-L1 on the seeds' box offsets."""
+                  lr: float = 2e-3, batch: int = 512, seed: int = 0, box_cols: slice | None = None,
+                  has_box: np.ndarray | None = None, standardize: bool = False, cosine: bool = False,
+                  beta: float = 0.1, box_weight: float = 1.0, kind: str = "fast_refiner",
+                  progress: bool = False) -> Refiner:
+    """Fit the MLP (torch, CPU): BCE on ``is_seed`` + smooth-L1 (``beta``) of (output + the candidate's own box
+    ``x[:, box_cols]``) against ``y`` on the rows of ``has_box`` (default: the seeds), weighted ``box_weight``.
+
+    ``box_cols`` defaults to the classical candidates' region box (:func:`candidate_features`). ``standardize``:
+    inputs scaled to zero mean and unit variance for training (``x`` is modified in place to save memory) and the
+    scaling folded into the first layer, so the saved MLP takes raw features. ``cosine``: the learning rate decays
+    to 3 % over the steps."""
     import torch
 
     g = torch.Generator().manual_seed(seed)
@@ -185,26 +205,55 @@ def train_refiner(x: np.ndarray, y: np.ndarray, is_seed: np.ndarray, steps: int 
             mods.append(torch.nn.ReLU())
     net = torch.nn.Sequential(*mods)
     opt = torch.optim.Adam(net.parameters(), lr)
-    X = torch.from_numpy(np.ascontiguousarray(x, np.float32))
-    Y = torch.from_numpy(np.ascontiguousarray(y, np.float32))
-    S = torch.from_numpy(np.asarray(is_seed, bool))
     n_patch = x.shape[1] - 9
-    rb = X[:, n_patch:n_patch + 4]
+    box_cols = box_cols if box_cols is not None else slice(n_patch, n_patch + 4)
+    x = np.ascontiguousarray(x, np.float32)
+    rb = torch.from_numpy(x[:, box_cols].copy())  # the candidates' own boxes, unscaled
+    mu = sd = None
+    if standardize:
+        # in blocks and in place: the features can be gigabytes (a float64 copy would double them)
+        s1 = np.zeros(x.shape[1], np.float64)
+        s2 = np.zeros(x.shape[1], np.float64)
+        for k0 in range(0, len(x), 65536):
+            blk = x[k0:k0 + 65536].astype(np.float64)
+            s1 += blk.sum(axis=0)
+            s2 += (blk * blk).sum(axis=0)
+        mu = (s1 / len(x)).astype(np.float32)
+        sd = (np.sqrt(np.maximum(s2 / len(x) - (s1 / len(x)) ** 2, 0.0)) + 1e-3).astype(np.float32)
+        for k0 in range(0, len(x), 65536):
+            x[k0:k0 + 65536] -= mu
+            x[k0:k0 + 65536] /= sd
+    X = torch.from_numpy(x)
+    Y = torch.from_numpy(np.nan_to_num(np.ascontiguousarray(y, np.float32)))
+    S = torch.from_numpy(np.asarray(is_seed, bool))
+    B = torch.from_numpy(np.asarray(is_seed if has_box is None else has_box, bool))
+    sched = (torch.optim.lr_scheduler.LambdaLR(opt, lambda k: 0.03 + 0.97 * 0.5 * (1 + np.cos(np.pi * k / steps)))
+             if cosine else None)
     losses = []
-    for _ in range(steps):
+    it = range(steps)
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(it, desc="refiner", unit="step", mininterval=1.0)
+    for _ in it:
         b = torch.randint(0, len(X), (min(batch, len(X)),), generator=g)
         o = net(X[b])
         loss = torch.nn.functional.binary_cross_entropy_with_logits(o[:, 4], S[b].float())
-        m = S[b]
+        m = B[b]
         if m.any():
-            loss = loss + torch.nn.functional.smooth_l1_loss(o[m, :4] + rb[b][m], Y[b][m], beta=0.1)
+            loss = loss + box_weight * torch.nn.functional.smooth_l1_loss(o[m, :4] + rb[b][m], Y[b][m], beta=beta)
         opt.zero_grad()
         loss.backward()
         opt.step()
+        if sched is not None:
+            sched.step()
         losses.append(loss.item())
     lin = [m for m in net if isinstance(m, torch.nn.Linear)]
     layers = [(m.weight.detach().numpy().T.copy(), m.bias.detach().numpy().copy()) for m in lin]
+    if standardize:  # (x - mu) / sd @ w + b  =  x @ (w / sd) + (b - (mu / sd) @ w)
+        w0, b0 = layers[0]
+        layers[0] = ((w0 / sd[:, None]).astype(np.float32), (b0 - (mu / sd) @ w0).astype(np.float32))
     r = int(round((np.sqrt(n_patch) - 1) / 2))
     return Refiner(layers, r, {"steps": steps, "samples": int(len(X)), "seed_fraction": float(S.float().mean()),
                                "loss_first_100": float(np.mean(losses[:100])),
-                               "loss_last_100": float(np.mean(losses[-100:]))})
+                               "loss_last_100": float(np.mean(losses[-100:]))}, kind)
