@@ -51,7 +51,8 @@ def evaluate_network(weights: str, datasets: list[str], thresholds: list[float])
     for d in datasets:
         ds = SeedmapDataset(d)
         mga = min_visible_seed_px(ds.calib.width)
-        dets, cpu[Path(d).name] = detect_all(d, weights, min(thresholds))
+        # the networks alone, as in session 10 (the session-12 refiner belongs to the shipped network only)
+        dets, cpu[Path(d).name] = detect_all(d, weights, min(thresholds), ["cnn.refiner=none"])
         for t in thresholds:
             dt = {k: v.subset(v.scores >= t) for k, v in dets.items()}
             m = evaluate_detections(ds, dt, 0.5, "greedy", mga)

@@ -16,7 +16,7 @@ from seedmap.io.seedmap_dataset import SeedmapDataset
 def test_shipped_cnn_finds_most_seeds(cnn_range):
     """The shipped network (trained on other seeds) on an unseen simulated frame: most seeds, < 1 px."""
     assert default_cnn_path().is_file() and default_cnn_path().stat().st_size < 5e6
-    det = make_detector("fast-cnn")
+    det = make_detector("fast-cnn", overrides=["cnn.refiner=none"])  # the network alone (the refiner: its own test)
     assert isinstance(det, CnnDetector)
     i = 2
     img, inst = cnn_range[i].left, cnn_range.gt_instances(i, "left")
@@ -42,9 +42,11 @@ def test_shipped_cnn_finds_most_seeds(cnn_range):
     assert det.cfg.threshold == 0.45 and det.threshold == 0.45
     assert CnnConfig(threshold=None).threshold == 0.45  # session-7 configs wrote `threshold: null`
     assert make_detector("fast-cnn", overrides=["cnn.domain=arm"]).threshold == 0.45
-    assert make_detector("fast-cnn", overrides=["cnn.threshold=0.3"]).threshold == 0.3
+    assert make_detector("fast-cnn", overrides=["cnn.threshold=0.3", "cnn.refiner=none"]).threshold == 0.3
+    # with the shipped refiner (the default on the field network) the detections need the refined score instead
+    assert make_detector("fast-cnn").threshold == CnnConfig().refine_threshold
     # the gated tiles give the same seeds as one whole-image pass (up to the gate's few misses)
-    full = make_detector("fast-cnn", overrides=["cnn.tile=0"]).detect(img)
+    full = make_detector("fast-cnn", overrides=["cnn.tile=0", "cnn.refiner=none"]).detect(img)
     mf, _ = frame_metrics(full, inst, min_gt_area=6)
     assert abs(mf.f1 - m.f1) < 0.03
     # `fast` is the CNN (shipped weights); the session-2 detector by switch or by its own name
@@ -147,8 +149,8 @@ def test_training_can_start_from_shipped_weights(cnn_range, tmp_path):
     m = train_cnn([cnn_range.root], tmp_path / "o", None, cfg, progress=False)
     assert (m["config"]["c1"], m["config"]["c2"]) == (8, 16)
     img = cnn_range[1].left
-    a = make_detector("fast-cnn").detect(img)
-    b = CnnDetector(CnnConfig(weights=str(tmp_path / "o" / "fast_cnn.onnx"))).detect(img)
+    a = make_detector("fast-cnn", overrides=["cnn.refiner=none"]).detect(img)  # the shipped network alone
+    b = CnnDetector(CnnConfig(weights=str(tmp_path / "o" / "fast_cnn.onnx"))).detect(img)  # no refiner: other weights
     assert len(a) > 500 and abs(len(a) - len(b)) <= 0.01 * len(a)
     dist, _ = cKDTree(a.keypoints).query(b.keypoints)
     assert np.median(dist) < 0.01
@@ -167,8 +169,8 @@ def test_box_nms_drops_overlapping_weaker_peaks(cnn_range):
     assert box_nms(boxes, scores, 0.9).tolist() == [0, 1, 2]  # 0 and 3 coincide (IoU 1)
     # in the detector (opt-in): a subset of the detections without it, no two kept boxes overlapping more
     img = cnn_range[2].left
-    off = make_detector("fast-cnn", overrides=["cnn.threshold=0.3"]).detect(img)
-    on = make_detector("fast-cnn", overrides=["cnn.threshold=0.3", "cnn.nms_iou=0.2"]).detect(img)
+    off = make_detector("fast-cnn", overrides=["cnn.threshold=0.3", "cnn.refiner=none"]).detect(img)
+    on = make_detector("fast-cnn", overrides=["cnn.threshold=0.3", "cnn.nms_iou=0.2", "cnn.refiner=none"]).detect(img)
     assert 0.5 * len(off) < len(on) < len(off)
     kp_off = {tuple(k) for k in np.round(off.keypoints, 4).tolist()}
     assert all(tuple(k) in kp_off for k in np.round(on.keypoints, 4).tolist())

@@ -74,6 +74,8 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
         dump_config(run_cfg, tmp / "config.yaml")
         meta = {"detector": det.name, "oracle": bool(det.is_oracle), "dataset": str(Path(dataset).resolve()),
                 "weights": str(weights) if weights else None, "frames": len(idx),
+                "refiner": str(getattr(det, "refiner", None).path) if hasattr(getattr(det, "refiner", None), "path")
+                else None,
                 "images": len(records), "detections": int(sum(r["n"] for r in records)),
                 "ms_per_stereo_frame": 1000.0 * t_det / len(idx)}
         atomic_write_text(tmp / "meta.json", json.dumps(meta, indent=2))
