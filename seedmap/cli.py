@@ -283,6 +283,9 @@ def train_cnn_refiner_cmd(
     hidden: str = typer.Option("128,64", "--hidden", help="Hidden layer widths, comma-separated."),
     steps: int = typer.Option(30000, "--steps", help="Training steps (batch 512)."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and batches."),
+    min_gt_area: Optional[float] = typer.Option(None, "--min-gt-area",
+                                                help="Visible px a GT seed needs to be a positive (default: the "
+                                                     "detectable-seed size at the image width)."),
     thresholds: str = typer.Option("0.25,0.3,0.35,0.4,0.45", "--thresholds",
                                    help="--val: refined-score thresholds to report."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing refiner in OUT."),
@@ -307,7 +310,8 @@ def train_cnn_refiner_cmd(
         ts = [float(v) for v in thresholds.split(",") if v.strip()]
     except ValueError:
         raise SeedmapError(f"--hidden {hidden!r} / --thresholds {thresholds!r}: comma-separated numbers expected") from None
-    cfg = CnnRefinerTrainConfig(candidates=candidates, patch_r=patch_r, hidden=hid, steps=steps, seed=seed)
+    cfg = CnnRefinerTrainConfig(candidates=candidates, patch_r=patch_r, hidden=hid, steps=steps, seed=seed,
+                                min_gt_area=min_gt_area)
     out.mkdir(parents=True, exist_ok=True)
     onnx_path = train_cnn_refiner(list(data), target, cfg, weights)
     metrics = {"refiner": str(onnx_path), "train": [str(d) for d in data]}

@@ -239,9 +239,11 @@ def onnx_bytes(mlp: Refiner) -> bytes:
 
 
 def training_data(datasets: list[str | Path], detector, patch_r: int = PATCH_R,  # noqa: ANN001 - CnnDetector
-                  progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  progress: bool = False, min_gt_area: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(features, GT box edges / 5 px, is_seed, has_box)`` of the ``detector``'s peaks (at its threshold) on
-    every image (left and right) of the simulated ``datasets``."""
+    every image (left and right) of the simulated ``datasets``. A seed has >= ``min_gt_area`` visible pixels
+    (None: the detectable-seed size at the dataset's width, as ``seedmap eval detect``)."""
     from seedmap.detect.config import min_visible_seed_px
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
@@ -263,7 +265,7 @@ def training_data(datasets: list[str | Path], detector, patch_r: int = PATCH_R, 
         pk = detector.peaks(img)
         fs.append(peak_features(img, pk.x, pk.y, pk.raw, patch_r).astype(np.float32))
         s, b, h = peak_targets(pk.x, pk.y, pk.raw, ds.gt_label_image(i, cam), ds.gt_instances(i, cam),
-                               min_visible_seed_px(ds.calib.width))
+                               min_gt_area if min_gt_area is not None else min_visible_seed_px(ds.calib.width))
         bs.append(b)
         ss.append(s)
         hs.append(h)
@@ -288,6 +290,8 @@ class CnnRefinerTrainConfig:
     batch: int = 512
     lr: float = 2e-3
     seed: int = 0
+    #: visible pixels a GT seed needs to be a positive (None: the detectable-seed size at the dataset's width)
+    min_gt_area: float | None = None
 
 
 def train_cnn_refiner(datasets: list[str | Path], out: str | Path, cfg: CnnRefinerTrainConfig | None = None,
@@ -301,7 +305,7 @@ def train_cnn_refiner(datasets: list[str | Path], out: str | Path, cfg: CnnRefin
     cfg = cfg or CnnRefinerTrainConfig()
     det = CnnDetector(CnnConfig(threshold=cfg.candidates, refiner="none"), weights=weights)
     t0 = time.process_time()
-    x, box, seed, has = training_data(datasets, det, cfg.patch_r, progress)
+    x, box, seed, has = training_data(datasets, det, cfg.patch_r, progress, cfg.min_gt_area)
     if len(x) == 0:
         raise InputError("no CNN peaks in the training datasets", datasets[0])
     n_patch = 3 * (2 * cfg.patch_r + 1) ** 2
