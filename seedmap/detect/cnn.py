@@ -88,7 +88,13 @@ def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
     from scratch on the session-9 ranges, 1.2x the CPU). A bare file name that is not a file in the working directory names one of the shipped networks in
     ``seedmap/detect/weights/`` (e.g. ``--set cnn.weights=fast_cnn_s9.onnx``), so an opt-in network can be
     chosen without knowing where the package is installed."""
-    p = Path(weights or cfg.weights or default_cnn_path(cfg.domain))
+    return shipped_or_path(weights or cfg.weights or default_cnn_path(cfg.domain))
+
+
+def shipped_or_path(name: str | Path) -> Path:
+    """``name`` as a path, unless it is a bare file name that is no file in the working directory but one of the
+    files shipped in ``seedmap/detect/weights/`` (then that one)."""
+    p = Path(name)
     if p.parent == Path(".") and not p.is_file():
         shipped = Path(__file__).with_name("weights") / p.name
         if shipped.is_file():
@@ -108,24 +114,21 @@ def load_refiner(cfg: CnnConfig, cnn_path: Path, explicit_weights: bool = False)
         p = default_cnn_refiner_path()
         if not (shipped and p.is_file()):
             return None
-        ref = CnnRefiner.load(p)
-        ref.check_network(cnn_path)
-        return ref
-    p = Path(name)
-    if p.parent == Path(".") and not p.is_file() and (Path(__file__).with_name("weights") / p.name).is_file():
-        p = Path(__file__).with_name("weights") / p.name
+    else:
+        p = shipped_or_path(name)
     ref = CnnRefiner.load(p)
     ref.check_network(cnn_path)
     return ref
 
 
-def load_session(path: str | Path, threads: int = 0):  # noqa: ANN201 - onnxruntime.InferenceSession
-    """An onnxruntime session of a ``fast_cnn`` ONNX file; a one-line :class:`InputError` otherwise."""
+def load_session(path: str | Path, threads: int = 0, kind: str = "fast_cnn"):  # noqa: ANN201 - ort.InferenceSession
+    """An onnxruntime session of a seedmap ONNX file whose metadata says ``kind`` (``fast_cnn``: the network;
+    ``cnn_refiner``: its second stage); a one-line :class:`InputError` otherwise."""
     import onnxruntime as ort
 
     p = Path(path)
     if not p.is_file():
-        raise InputError("fast CNN weights not found", p)
+        raise InputError(f"{'fast CNN' if kind == 'fast_cnn' else kind.replace('_', ' ')} weights not found", p)
     so = ort.SessionOptions()
     if threads > 0:
         so.intra_op_num_threads = int(threads)
@@ -136,8 +139,8 @@ def load_session(path: str | Path, threads: int = 0):  # noqa: ANN201 - onnxrunt
     except Exception as e:  # onnxruntime raises its own exception types for bad files
         raise InputError(f"not a readable ONNX model ({str(e).splitlines()[0][:120]})", p) from None
     meta = sess.get_modelmeta().custom_metadata_map
-    if meta.get("seedmap_kind") != "fast_cnn":
-        raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected fast_cnn", p)
+    if meta.get("seedmap_kind") != kind:
+        raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected {kind}", p)
     return sess
 
 

@@ -187,20 +187,10 @@ class CnnRefiner:
 def _load_onnx(p: Path) -> tuple[object, int, dict, tuple[int, int]]:
     import json
 
-    import onnxruntime as ort
+    from seedmap.detect.cnn import load_session
 
-    if not p.is_file():
-        raise InputError("cnn refiner weights not found", p)
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = 1
-    so.inter_op_num_threads = 1
-    try:
-        sess = ort.InferenceSession(str(p), so, providers=["CPUExecutionProvider"])
-    except Exception as e:  # onnxruntime raises its own exception types for bad files
-        raise InputError(f"not a readable ONNX model ({str(e).splitlines()[0][:120]})", p) from None
+    sess = load_session(p, threads=1, kind=KIND)
     meta = sess.get_modelmeta().custom_metadata_map
-    if meta.get("seedmap_kind") != KIND:
-        raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected {KIND}", p)
     n_in = sess.get_inputs()[0].shape[1]
     n_out = sess.get_outputs()[0].shape[1]
     return sess, int(meta.get("patch_r", PATCH_R)), json.loads(meta.get("info", "{}")), (int(n_in), int(n_out))
