@@ -33,11 +33,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from seedmap.detect.refine import Refiner
+from seedmap.detect.refine import Refiner, patches
 from seedmap.errors import ConfigError, InputError
 
 #: default half size of the patch (13 x 13 px)
@@ -69,12 +68,7 @@ def peak_features(img: np.ndarray, x: np.ndarray, y: np.ndarray, raw: np.ndarray
     if n == 0:
         return np.zeros((0, 3 * (2 * r + 1) ** 2 + N_EXTRA), np.float32)
     h, w = img.shape[:2]
-    xi = np.clip(np.asarray(x, np.int64), 0, w - 1)
-    yi = np.clip(np.asarray(y, np.int64), 0, h - 1)
-    pad = cv2.copyMakeBorder(img, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
-    idx = np.arange(-r, r + 1)
-    patch = pad[(yi + r)[:, None, None] + idx[None, :, None], (xi + r)[:, None, None] + idx[None, None, :]]
-    patch = patch.reshape(n, -1).astype(np.float32) * (1.0 / 255.0)
+    patch = patches(img, np.clip(np.asarray(x, np.int64), 0, w - 1), np.clip(np.asarray(y, np.int64), 0, h - 1), r)
     rw = np.asarray(raw, np.float32).copy()
     rw[:, 1:5] /= SCALE_PX
     # neighbour context: the strongest other peak within NEIGHBOUR_PX whose logit is higher

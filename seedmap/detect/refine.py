@@ -37,6 +37,19 @@ def default_refiner_path() -> Path:
     return Path(__file__).with_name("weights") / "fast_refiner.safetensors"
 
 
+def patches(img: np.ndarray, x: np.ndarray, y: np.ndarray, r: int) -> np.ndarray:
+    """``(N, (2r+1)^2 * channels)`` float32: the square of half size ``r`` around each pixel ``x``, ``y`` (N,) int
+    (inside the image) of the uint8 ``img`` (H, W) or (H, W, C), / 255, zero outside the image; row-major, the
+    channels of a pixel together. One gather of flat indices into the padded image."""
+    pad = cv2.copyMakeBorder(img, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
+    ch = 1 if pad.ndim == 2 else pad.shape[2]
+    wp = pad.shape[1]
+    idx = np.arange(-r, r + 1)
+    offs = ((idx[:, None] * wp + idx[None, :])[..., None] * ch + np.arange(ch)).ravel()
+    base = ((np.asarray(y, np.int64) + r) * wp + (np.asarray(x, np.int64) + r)) * ch
+    return np.take(pad.ravel(), base[:, None] + offs[None, :]).astype(np.float32) / 255.0
+
+
 def candidate_features(f: np.ndarray, det: Detections, r: int = PATCH_R) -> tuple[np.ndarray, np.ndarray]:
     """``(features (N, (2r+1)^2 + 9) float32, centre pixel (N, 2) int)`` of the candidates ``det``.
 
@@ -51,12 +64,7 @@ def candidate_features(f: np.ndarray, det: Detections, r: int = PATCH_R) -> tupl
     h, w = f.shape
     c[:, 0] = np.clip(c[:, 0], 0, w - 1)
     c[:, 1] = np.clip(c[:, 1], 0, h - 1)
-    fp = cv2.copyMakeBorder(f, r, r, r, r, cv2.BORDER_CONSTANT, value=0).ravel()
-    wp = w + 2 * r
-    idx = np.arange(-r, r + 1)
-    offs = (idx[:, None] * wp + idx[None, :]).ravel()
-    base = (c[:, 1] + r) * wp + (c[:, 0] + r)
-    patch = fp[base[:, None] + offs[None, :]].astype(np.float32) / 255.0
+    patch = patches(f, c[:, 0], c[:, 1], r)
     rb = (np.asarray(det.boxes, np.float64) - np.c_[c, c]) / SCALE_PX
     e = np.asarray(det.ellipses, np.float64)
     a = np.radians(2.0 * e[:, 4])
