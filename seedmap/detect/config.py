@@ -147,7 +147,7 @@ class CnnConfig(ConfigModel):
     #: learned second stage (seedmap.detect.cnn_refine: every peak rescored and its box corrected): ``auto`` = the
     #: shipped refiner when the shipped field network runs (off for other networks, e.g. ``domain=arm``), ``none`` =
     #: off, or a refiner file trained for the network in use (``seedmap train cnn-refiner``; a bare shipped file name
-    #: works too). Session 12: held-out box F1 0.870 -> 0.917 pooled over five ranges, 1.45x the CPU per image
+    #: works too). Session 12: held-out box F1 0.870 -> 0.917 pooled over five ranges, 1.33x the CPU per image
     refiner: str = "auto"
     #: with a refiner: the network's peak threshold that makes the candidates ...
     refine_candidates: float = Field(0.25, gt=0, lt=1)
@@ -163,7 +163,7 @@ class CnnConfig(ConfigModel):
     #: ~3x the CPU on a busy 2-core machine)
     threads: int = 1
     #: detect_stereo runs the left and the right image concurrently on this many threads (1 or 2). Session 12, quiet
-    #: 2-core host, with the refiner: 70.8 ms per stereo pair in sequence, 38.5 ms concurrently (26 pairs/s)
+    #: 2-core host, with the refiner: 60.5 ms per stereo pair in sequence, 36.0 ms concurrently (28 pairs/s)
     stereo_threads: int = 2
 
 
