@@ -312,8 +312,7 @@ def train_cnn_refiner_cmd(
         raise SeedmapError(f"--hidden {hidden!r} / --thresholds {thresholds!r}: comma-separated numbers expected") from None
     cfg = CnnRefinerTrainConfig(candidates=candidates, patch_r=patch_r, hidden=hid, steps=steps, seed=seed,
                                 min_gt_area=min_gt_area)
-    out.mkdir(parents=True, exist_ok=True)
-    onnx_path = train_cnn_refiner(list(data), target, cfg, weights)
+    onnx_path = train_cnn_refiner(list(data), target, cfg, weights)  # creates OUT only when the weights are written
     metrics = {"refiner": str(onnx_path), "train": [str(d) for d in data]}
     if val:
         metrics["validation"] = validate(list(val), onnx_path, ts, weights)

@@ -117,3 +117,29 @@ def test_training_a_refiner_on_a_small_range_learns(cnn_range, tmp_path):
     img, inst = cnn_range[4].right, cnn_range.gt_instances(4, "right")
     m, _ = frame_metrics(det.detect(img), inst, min_gt_area=10)
     assert m.f1 > 0.7, m
+
+
+def test_train_cnn_refiner_bad_inputs_are_one_line(tmp_path, monkeypatch, capsys):
+    """Missing datasets, a dataset without GT and bad numbers give one line and exit code 2, and no output."""
+    pytest.importorskip("torch")
+    from cli_run import run_cli
+
+    from seedmap.io.seedmap_dataset import DatasetWriter
+    from seedmap.records import StereoCalib
+
+    out = tmp_path / "o"
+    assert run_cli(["train", "cnn-refiner", tmp_path / "missing", "--out", out], monkeypatch) == 2
+    err = capsys.readouterr().err
+    assert "missing: dataset folder not found" in err and "Traceback" not in err
+    nogt = tmp_path / "nogt"  # a real-data layout: images, no gt/
+    w = DatasetWriter(nogt)
+    w.write_calib(StereoCalib(fx=120.0, fy=120.0, cx=80.0, cy=60.0, baseline=0.1, width=160, height=120))
+    w.write_times(np.zeros(1))
+    img = np.random.default_rng(0).integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    w.write_frame(0, img, img)
+    assert run_cli(["train", "cnn-refiner", nogt, "--out", out], monkeypatch) == 2
+    err = capsys.readouterr().err
+    assert "no ground truth" in err and "nogt" in err
+    assert run_cli(["train", "cnn-refiner", nogt, "--out", out, "--hidden", "64,x"], monkeypatch) == 2
+    assert "--hidden" in capsys.readouterr().err
+    assert not out.exists()

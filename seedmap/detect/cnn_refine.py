@@ -302,6 +302,7 @@ def train_cnn_refiner(datasets: list[str | Path], out: str | Path, cfg: CnnRefin
                 "cpu_s": time.process_time() - t0, "config": {**cfg.__dict__, "hidden": list(cfg.hidden)}}
     from seedmap.io.atomic import atomic_write_bytes
 
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
     mlp.save(out)
     onnx_path = Path(out).with_suffix(".onnx")
     atomic_write_bytes(onnx_path, onnx_bytes(mlp))
