@@ -273,8 +273,11 @@ def train_fast_refiner_cmd(
 
 @train_app.command("cnn-refiner")
 def train_cnn_refiner_cmd(
-    data: List[Path] = typer.Argument(..., help="Simulated training datasets with GT masks (e.g. data/det_s40)."),
+    data: List[Path] = typer.Argument(..., help="Training data: simulated datasets with GT masks (e.g. data/det_s40) "
+                                                "or COCO .json files with instance masks."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for cnn_refiner.onnx (+ .safetensors) and metrics.json."),
+    images_root: Optional[Path] = typer.Option(None, "--images-root",
+                                               help="Folder of the COCO files' images (default: beside each file)."),
     val: Optional[List[Path]] = typer.Option(None, "--val", help="Validation datasets: box F1 per threshold."),
     weights: Optional[Path] = typer.Option(None, "--weights", help="The fast_cnn network whose peaks it refines "
                                                                    "(default: the shipped field network)."),
@@ -299,9 +302,12 @@ def train_cnn_refiner_cmd(
     from seedmap.detect.cnn_refine import CnnRefinerTrainConfig, train_cnn_refiner, validate
     from seedmap.io.atomic import atomic_write_text
 
-    for d in list(data) + list(val or []):
+    for d in data:
+        if not (d.is_dir() or (d.is_file() and d.suffix.lower() == ".json")):
+            raise SeedmapError(f"{d}: dataset folder or COCO .json file not found")
+    for d in val or []:
         if not d.is_dir():
-            raise SeedmapError(f"{d}: dataset folder not found")
+            raise SeedmapError(f"{d}: validation dataset folder not found (--val scores simulated datasets)")
     target = out / "cnn_refiner.safetensors"
     if target.exists() and not overwrite:
         raise SeedmapError(f"{target} exists (use --overwrite to replace it)")
@@ -312,7 +318,8 @@ def train_cnn_refiner_cmd(
         raise SeedmapError(f"--hidden {hidden!r} / --thresholds {thresholds!r}: comma-separated numbers expected") from None
     cfg = CnnRefinerTrainConfig(candidates=candidates, patch_r=patch_r, hidden=hid, steps=steps, seed=seed,
                                 min_gt_area=min_gt_area)
-    onnx_path = train_cnn_refiner(list(data), target, cfg, weights)  # creates OUT only when the weights are written
+    # creates OUT only when the weights are written
+    onnx_path = train_cnn_refiner(list(data), target, cfg, weights, images_root=images_root)
     metrics = {"refiner": str(onnx_path), "train": [str(d) for d in data]}
     if val:
         metrics["validation"] = validate(list(val), onnx_path, ts, weights)

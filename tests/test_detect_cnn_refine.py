@@ -130,7 +130,7 @@ def test_train_cnn_refiner_bad_inputs_are_one_line(tmp_path, monkeypatch, capsys
     out = tmp_path / "o"
     assert run_cli(["train", "cnn-refiner", tmp_path / "missing", "--out", out], monkeypatch) == 2
     err = capsys.readouterr().err
-    assert "missing: dataset folder not found" in err and "Traceback" not in err
+    assert "missing: dataset folder or COCO .json file not found" in err and "Traceback" not in err
     nogt = tmp_path / "nogt"  # a real-data layout: images, no gt/
     w = DatasetWriter(nogt)
     w.write_calib(StereoCalib(fx=120.0, fy=120.0, cx=80.0, cy=60.0, baseline=0.1, width=160, height=120))
@@ -143,3 +143,33 @@ def test_train_cnn_refiner_bad_inputs_are_one_line(tmp_path, monkeypatch, capsys
     assert run_cli(["train", "cnn-refiner", nogt, "--out", out, "--hidden", "64,x"], monkeypatch) == 2
     assert "--hidden" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_refiner_training_data_from_coco_masks_matches_the_simulated_gt(cnn_range, tmp_path):
+    """A COCO export (RLE and polygon masks) of two left images gives the refiner nearly the same targets as the
+    simulated GT itself; annotations with boxes only are refused (the refiner learns from masks)."""
+    import json
+
+    from test_audit2_labels import _export_coco  # tests/ is on sys.path
+
+    from seedmap.detect.cnn_refine import training_data
+    from seedmap.detect.config import CnnConfig, min_visible_seed_px
+
+    coco, _ = _export_coco(cnn_range.root, frames=(0, 1), min_area=1)
+    p = tmp_path / "labels.json"
+    p.write_text(json.dumps(coco))
+    det = CnnDetector(CnnConfig(threshold=0.25, refiner="none"))
+    x, box, seed, has = training_data([p], det, images_root=cnn_range.root)
+    ref = [peak_targets(pk.x, pk.y, pk.raw, cnn_range.gt_label_image(i, "left"), cnn_range.gt_instances(i, "left"),
+                        min_visible_seed_px(cnn_range.calib.width))
+           for i in (0, 1) for pk in [det.peaks(cnn_range[i].left)]]
+    seed_ref, has_ref = np.concatenate([r[0] for r in ref]), np.concatenate([r[2] for r in ref])
+    assert len(seed) == len(seed_ref) > 1000 and x.shape == (len(seed), 3 * 13 * 13 + 15)
+    # RLE masks are exact, polygons outline the pixels approximately
+    assert (seed == seed_ref).mean() > 0.97 and (has == has_ref).mean() > 0.97
+    assert seed.mean() > 0.5 and (~seed).sum() > 20  # both classes (second peaks, slivers, background)
+    for a in coco["annotations"]:
+        del a["segmentation"]
+    p.write_text(json.dumps(coco))
+    with pytest.raises(InputError, match="without masks"):
+        training_data([p], det, images_root=cnn_range.root)

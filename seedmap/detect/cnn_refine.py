@@ -223,33 +223,40 @@ def onnx_bytes(mlp: Refiner) -> bytes:
 
 
 def training_data(datasets: list[str | Path], detector, patch_r: int = PATCH_R,  # noqa: ANN001 - CnnDetector
-                  progress: bool = False, min_gt_area: float | None = None
+                  progress: bool = False, min_gt_area: float | None = None, images_root: str | Path | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(features, GT box edges / 5 px, is_seed, has_box)`` of the ``detector``'s peaks (at its threshold) on
-    every image (left and right) of the simulated ``datasets``. A seed has >= ``min_gt_area`` visible pixels
-    (None: the detectable-seed size at the dataset's width, as ``seedmap eval detect``)."""
+    every labelled image of ``datasets``: simulated dataset folders (left and right images, GT masks) or COCO
+    ``.json`` files with instance masks (polygon or RLE; images under ``images_root``, default beside the file). A
+    seed has >= ``min_gt_area`` visible pixels (None: the detectable-seed size at the image width, as
+    ``seedmap eval detect``)."""
     from seedmap.detect.config import min_visible_seed_px
-    from seedmap.io.seedmap_dataset import SeedmapDataset
+    from seedmap.detect.labels import SeedmapSource, open_labelled
+    from seedmap.io.seedmap_dataset import Instances
 
-    items = []
-    for p in datasets:
-        ds = SeedmapDataset(p)
-        if not ds.has_gt:
-            raise InputError("dataset has no ground truth (gt/instances/) to train on", p)
-        items += [(ds, i, cam) for i in range(len(ds)) for cam in ("left", "right")]
+    sources = [SeedmapSource(p, min_area_px=1) if Path(p).is_dir() else open_labelled(p, images_root)
+               for p in datasets]
+    items = [(src, p, k) for src, p in zip(sources, datasets) for k in range(len(src))]
     it = items
     if progress:
         from tqdm import tqdm
 
         it = tqdm(items, desc="cnn-refiner samples", unit="img")
     fs, bs, ss, hs = [], [], [], []
-    for ds, i, cam in it:
-        fr = ds[i]
-        img = fr.left if cam == "left" else fr.right
-        pk = detector.peaks(img)
-        fs.append(peak_features(img, pk.x, pk.y, pk.raw, patch_r).astype(np.float32))
-        s, b, h = peak_targets(pk.x, pk.y, pk.raw, ds.gt_label_image(i, cam), ds.gt_instances(i, cam),
-                               min_gt_area if min_gt_area is not None else min_visible_seed_px(ds.calib.width))
+    for src, p, k in it:
+        li = src[k]
+        n = len(li.boxes)
+        area = np.bincount(li.labels.ravel(), minlength=n + 1)[1:n + 1]
+        if n and not area.any():
+            raise InputError(f"image {li.name}: instances without masks (the refiner learns from instance masks: "
+                             "COCO polygon or RLE segmentations)", p)
+        inst = Instances(label=np.arange(1, n + 1), seed_id=np.arange(n), panicle_id=np.zeros(n, np.int64),
+                         boxes=np.asarray(li.boxes, np.float64), center_uv=np.zeros((n, 2)), area=area,
+                         center_visible=np.ones(n, bool))
+        pk = detector.peaks(li.image)
+        fs.append(peak_features(li.image, pk.x, pk.y, pk.raw, patch_r).astype(np.float32))
+        s, b, h = peak_targets(pk.x, pk.y, pk.raw, li.labels, inst,
+                               min_gt_area if min_gt_area is not None else min_visible_seed_px(li.image.shape[1]))
         bs.append(b)
         ss.append(s)
         hs.append(h)
@@ -279,9 +286,10 @@ class CnnRefinerTrainConfig:
 
 
 def train_cnn_refiner(datasets: list[str | Path], out: str | Path, cfg: CnnRefinerTrainConfig | None = None,
-                      weights: str | Path | None = None, progress: bool = True) -> Path:
+                      weights: str | Path | None = None, progress: bool = True,
+                      images_root: str | Path | None = None) -> Path:
     """Train a refiner for the network ``weights`` (default: the shipped field network) on the simulated
-    ``datasets``; write its weights and config to ``out`` (``.safetensors``) and the inference graph beside it
+    ``datasets`` (simulated folders or COCO files, :func:`training_data`); write its weights and config to ``out`` (``.safetensors``) and the inference graph beside it
     (same name, ``.onnx``), both atomically. Returns the ``.onnx`` path."""
     from seedmap.detect.cnn import CnnDetector
     from seedmap.detect.config import CnnConfig
@@ -289,7 +297,7 @@ def train_cnn_refiner(datasets: list[str | Path], out: str | Path, cfg: CnnRefin
     cfg = cfg or CnnRefinerTrainConfig()
     det = CnnDetector(CnnConfig(threshold=cfg.candidates, refiner="none"), weights=weights)
     t0 = time.process_time()
-    x, box, seed, has = training_data(datasets, det, cfg.patch_r, progress, cfg.min_gt_area)
+    x, box, seed, has = training_data(datasets, det, cfg.patch_r, progress, cfg.min_gt_area, images_root)
     if len(x) == 0:
         raise InputError("no CNN peaks in the training datasets", datasets[0])
     n_patch = 3 * (2 * cfg.patch_r + 1) ** 2
