@@ -173,3 +173,19 @@ def test_refiner_training_data_from_coco_masks_matches_the_simulated_gt(cnn_rang
     p.write_text(json.dumps(coco))
     with pytest.raises(InputError, match="without masks"):
         training_data([p], det, images_root=cnn_range.root)
+
+
+def test_concurrent_stereo_detection_equals_sequential(cnn_range):
+    """``cnn.stereo_threads=2`` (the default) runs left and right at once on shared onnxruntime sessions (network and
+    refiner): the same detections as one after the other."""
+    fr = cnn_range[3]
+    a = make_detector("fast-cnn", overrides=["cnn.stereo_threads=1"]).detect_stereo(fr)
+    det = make_detector("fast-cnn")
+    assert det.cfg.stereo_threads == 2 and det.refiner is not None
+    for _ in range(3):
+        b = det.detect_stereo(fr)
+        for x, y in ((a.left, b.left), (a.right, b.right)):
+            assert len(x) > 500
+            np.testing.assert_array_equal(x.boxes, y.boxes)
+            np.testing.assert_array_equal(x.scores, y.scores)
+            np.testing.assert_array_equal(x.keypoints, y.keypoints)
