@@ -21,6 +21,13 @@ from seedmap.errors import InputError, SeedmapError
 from seedmap.records import Detections, StereoDetections, StereoFrame
 
 
+def logit(p: float) -> float:
+    """The logit whose sigmoid is the probability ``p`` (clipped to [1e-6, 1 - 1e-6]): ``sigmoid(z) >= p`` iff
+    ``z >= logit(p)``, so score thresholds apply to raw network outputs."""
+    t = min(max(float(p), 1e-6), 1 - 1e-6)
+    return float(np.log(t / (1 - t)))
+
+
 def check_image(image: np.ndarray, what: str = "image") -> np.ndarray:
     """Refuse anything that is not an ``H x W x 3`` ``uint8`` RGB array (one-line error)."""
     a = np.asarray(image)

@@ -61,7 +61,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seedmap.detect.base import Detector, check_image, map_to_input
+from seedmap.detect.base import Detector, check_image, logit, map_to_input
 from seedmap.detect.config import CnnConfig, FastConfig
 from seedmap.errors import ConfigError, InputError
 from seedmap.records import Detections, StereoDetections, StereoFrame
@@ -196,8 +196,7 @@ def decode(out: np.ndarray, threshold: float, valid: tuple[int, int, int, int], 
     y0, y1, x0, x1 = valid
     # the tiles stacked vertically: one 3x3 max filter for all (rows that mix two tiles lie in margins)
     heat = np.ascontiguousarray(out[:, 0]).reshape(n * h, w)
-    t = min(max(threshold, 1e-6), 1 - 1e-6)
-    pk = heat >= np.log(t / (1 - t))
+    pk = heat >= logit(threshold)
     pk &= heat >= cv2.dilate(heat, kernel)
     pk = pk.reshape(n, h, w)
     win = np.zeros((h, w), bool)
@@ -290,8 +289,7 @@ class CnnDetector(Detector):
         pk = self.peaks(img)
         if self.refiner is not None and len(pk):
             raw = self.refiner.refine(img, pk.x, pk.y, pk.raw)
-            t = min(max(self.threshold, 1e-6), 1 - 1e-6)
-            keep = raw[:, 0] >= np.log(t / (1 - t))
+            keep = raw[:, 0] >= logit(self.threshold)
             pk = CnnPeaks(pk.x[keep], pk.y[keep], raw[keep])
         return self.to_detections(pk, img.shape[:2])
 
@@ -340,7 +338,7 @@ class CnnDetector(Detector):
             return Detections()
         h, w = shape
         xs, ys = pk.x, pk.y
-        logit, l, tp, r, b, dx, dy = pk.raw.T
+        lg, l, tp, r, b, dx, dy = pk.raw.T
         x0 = xs - np.round(np.maximum(l, 0))
         y0 = ys - np.round(np.maximum(tp, 0))
         x1 = np.maximum(xs + np.round(np.maximum(r, 0)), x0 + 1)
@@ -349,7 +347,7 @@ class CnnDetector(Detector):
         bw, bh = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]
         ell = np.stack([xs + dx, ys + dy, np.maximum(bw, bh), np.minimum(bw, bh),
                         np.where(bw >= bh, 0.0, 90.0)], axis=1)
-        score = 1.0 / (1.0 + np.exp(-logit))
+        score = 1.0 / (1.0 + np.exp(-lg))
         if self.cfg.nms_iou > 0 and len(score) > 1:
             k = box_nms(boxes, score, self.cfg.nms_iou)
             boxes, score, ell = boxes[k], score[k], ell[k]

@@ -288,9 +288,9 @@ class CnnRefinerTrainConfig:
 def train_cnn_refiner(datasets: list[str | Path], out: str | Path, cfg: CnnRefinerTrainConfig | None = None,
                       weights: str | Path | None = None, progress: bool = True,
                       images_root: str | Path | None = None) -> Path:
-    """Train a refiner for the network ``weights`` (default: the shipped field network) on the simulated
-    ``datasets`` (simulated folders or COCO files, :func:`training_data`); write its weights and config to ``out`` (``.safetensors``) and the inference graph beside it
-    (same name, ``.onnx``), both atomically. Returns the ``.onnx`` path."""
+    """Train a refiner for the network ``weights`` (default: the shipped field network) on ``datasets`` (simulated
+    folders or COCO files, :func:`training_data`); write its weights and config to ``out`` (``.safetensors``) and
+    the inference graph beside it (same name, ``.onnx``), both atomically. Returns the ``.onnx`` path."""
     from seedmap.detect.cnn import CnnDetector
     from seedmap.detect.config import CnnConfig
 
@@ -334,7 +334,7 @@ def validate(datasets: list[str | Path], refiner: str | Path, thresholds: list[f
     of the plain network at its own 0.45, per dataset and pooled (summed counts)."""
     from seedmap.detect.cnn import CnnDetector
     from seedmap.detect.config import CnnConfig, min_visible_seed_px
-    from seedmap.eval.detect_metrics import evaluate_detections
+    from seedmap.eval.detect_metrics import evaluate_detections, prf
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
     runs = {"plain": CnnDetector(CnnConfig(refiner="none"), weights=weights),
@@ -367,6 +367,6 @@ def validate(datasets: list[str | Path], refiner: str | Path, thresholds: list[f
                 a[2] += m.n_gt
         res["datasets"][str(p)] = per
     for key, (tp, nd, ng) in tot.items():
-        pr, rc = tp / max(nd, 1), tp / max(ng, 1)
-        res["pooled"][key] = {"precision": pr, "recall": rc, "f1": 2 * pr * rc / max(pr + rc, 1e-12)}
+        pr, rc, f1 = prf(tp, nd, ng)
+        res["pooled"][key] = {"precision": pr, "recall": rc, "f1": f1}
     return res

@@ -23,6 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from seedmap.detect.base import logit
 from seedmap.errors import InputError
 from seedmap.records import Detections
 
@@ -106,9 +107,7 @@ class Refiner:
         box = np.round((o[:, :4] + x[:, n_patch:n_patch + 4]) * SCALE_PX) + np.c_[c, c]
         box[:, 2] = np.maximum(box[:, 2], box[:, 0] + 1)
         box[:, 3] = np.maximum(box[:, 3], box[:, 1] + 1)
-        # logit >= log(t / (1 - t))  <=>  sigmoid >= t
-        t = min(max(threshold, 1e-6), 1 - 1e-6)
-        keep = o[:, 4] >= np.log(t / (1 - t))
+        keep = o[:, 4] >= logit(threshold)
         p = 1.0 / (1.0 + np.exp(-o[keep, 4].astype(np.float64)))
         return Detections(boxes=box[keep], scores=p.astype(np.float32), ellipses=np.asarray(det.ellipses)[keep])
 

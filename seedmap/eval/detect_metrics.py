@@ -121,7 +121,8 @@ class DetectMetrics:
         return asdict(self)
 
 
-def _prf(tp: int, nd: int, ng: int) -> tuple[float, float, float]:
+def prf(tp: int, nd: int, ng: int) -> tuple[float, float, float]:
+    """Precision, recall and F1 from true positives, detections and counted GT (summed over any set of images)."""
     p = tp / nd if nd else (1.0 if ng == 0 else 0.0)
     r = tp / ng if ng else 1.0
     f = 2 * p * r / (p + r) if (p + r) > 0 else 0.0
@@ -148,7 +149,7 @@ def frame_metrics(det: Detections, gt: Instances, frame: int = 0, camera: str = 
     nd = len(det) - n_ignored_det
     ng = int(keep.sum())
     tp = len(md)
-    p, r, f = _prf(tp, nd, ng)
+    p, r, f = prf(tp, nd, ng)
     vis = gt.center_visible[mg]
     err = np.linalg.norm(det.keypoints[md[vis]] - gt.center_uv[mg[vis]], axis=1)
     m = FrameDetectMetrics(frame, camera, nd, ng, tp, p, r, f,
@@ -162,7 +163,7 @@ def aggregate(rows: list[FrameDetectMetrics], errors: list[np.ndarray], iou_thre
     nd = sum(r.n_det for r in rows)
     ng = sum(r.n_gt for r in rows)
     tp = sum(r.tp for r in rows)
-    p, r, f = _prf(tp, nd, ng)
+    p, r, f = prf(tp, nd, ng)
     e = np.concatenate(errors) if errors else np.zeros(0)
     has = len(e) > 0
     return DetectMetrics(
