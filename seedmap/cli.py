@@ -271,6 +271,99 @@ def train_fast_refiner_cmd(
                f"loss {ref.info['loss_first_100']:.3f} -> {ref.info['loss_last_100']:.3f})")
 
 
+@train_app.command("count-calibration")
+def train_count_calibration_cmd(
+    results: List[Path] = typer.Argument(..., help="`seedmap reconstruct` results folders of panicles whose true "
+                                                   "count is known (all with the same detector and settings)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration file (.json) to write."),
+    counts: Optional[Path] = typer.Option(None, "--counts", help="CSV `result,count` of true counts (e.g. by hand; "
+                                                                 "result = folder path or name); default: the "
+                                                                 "simulator's countable seeds in each metrics.json."),
+    features: str = typer.Option("obs_fraction,seed_diam_mm", "--features",
+                                 help="Comma-separated features (obs_fraction, seed_diam_mm; empty = a constant "
+                                      "ratio only, for few panicles)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing calibration file."),
+) -> None:
+    """Fit a count calibration (seedmap.recon.calibrate) from reconstructions with known counts; use it with
+    `seedmap count RESULT --set count.calibration=FILE` or `seedmap reconstruct ... --set count.calibration=FILE`."""
+    from rich.progress import track
+
+    from seedmap.config import load_config
+    from seedmap.recon.calibrate import count_domain, fit_count_calibration, save_count_calibration
+    from seedmap.recon.config import ReconConfig
+    from seedmap.recon.pipeline import recount_calibrated
+
+    if out.exists() and not overwrite:
+        raise SeedmapError(f"{out} exists (use --overwrite to replace it)")
+    if out.suffix.lower() != ".json":
+        raise SeedmapError(f"{out}: the calibration file must end in .json")
+    names = tuple(f.strip() for f in features.split(",") if f.strip())
+    truth_by: dict[str, float] = {}
+    if counts is not None:
+        truth_by = _read_true_counts(counts)
+    feats, truth, samples, domain = [], [], [], None
+    for r in track(results, description="counting", transient=True):
+        cfg_path = r / "config.yaml"
+        if not cfg_path.is_file():
+            raise SeedmapError(f"{cfg_path}: not found (is this a `seedmap reconstruct` results folder?)")
+        cfg = load_config(ReconConfig, cfg_path, ["count.calibration=none"])
+        if cfg.count.method != "multiview":
+            raise SeedmapError(f"{r}: counted with method {cfg.count.method!r}; calibrations are for multiview")
+        dom = count_domain(cfg)
+        if domain is None:
+            domain = dom
+        elif (why := domain.mismatch(dom)) is not None:
+            raise SeedmapError(f"{r}: differs from {results[0]}: {why.replace('it was fitted', 'that one ran')}")
+        if counts is not None:
+            g = truth_by.get(str(r).rstrip("/"), truth_by.get(r.name))
+            if g is None:
+                raise SeedmapError(f"{counts}: no count for {r} (rows are `result,count`)")
+        else:
+            try:
+                g = json.loads((r / "metrics.json").read_text())["gt"]["count_gt_countable"]
+            except (OSError, ValueError, KeyError, TypeError):
+                raise SeedmapError(f"{r / 'metrics.json'}: no ground-truth count (simulated scans have one; "
+                                   "for your own panicles pass --counts)") from None
+        _, cal = recount_calibrated(r, cfg)
+        feats.append(cal.features)
+        truth.append(float(g))
+        samples.append(str(r))
+    cal = fit_count_calibration(feats, truth, domain, samples, names,
+                                truth_name=f"counts in {counts}" if counts is not None
+                                else "GT countable seeds (>= 12 px in the left and right image of >= 2 views)")
+    save_count_calibration(cal, out)
+    f = cal.fit
+    typer.echo(f"count calibration written to {out} ({len(feats)} panicles): MAPE raw {f['raw_mape_pct']:.2f} % -> "
+               f"calibrated {f['calibrated_mape_pct']:.2f} % (leave-one-out {f['loo_mape_pct']:.2f} %)")
+
+
+def _read_true_counts(path: Path) -> dict[str, float]:
+    """``result,count`` rows (a header row is skipped) -> {result: count}."""
+    import csv
+
+    if not path.is_file():
+        raise SeedmapError(f"{path}: counts file not found")
+    out: dict[str, float] = {}
+    with path.open(newline="") as fh:
+        for i, row in enumerate(csv.reader(fh)):
+            if not row or not "".join(row).strip():
+                continue
+            if len(row) != 2:
+                raise SeedmapError(f"{path}: line {i + 1}: expected `result,count`, got {len(row)} fields")
+            try:
+                v = float(row[1])
+            except ValueError:
+                if i == 0:
+                    continue  # header
+                raise SeedmapError(f"{path}: line {i + 1}: count {row[1]!r} is not a number") from None
+            if not v > 0:
+                raise SeedmapError(f"{path}: line {i + 1}: count must be > 0, got {row[1]}")
+            out[row[0].strip().rstrip("/")] = v
+    if not out:
+        raise SeedmapError(f"{path}: no `result,count` rows")
+    return out
+
+
 @train_app.command("cnn-refiner")
 def train_cnn_refiner_cmd(
     data: List[Path] = typer.Argument(..., help="Training data: simulated datasets with GT masks (e.g. data/det_s40) "
@@ -763,7 +856,9 @@ def reconstruct_cmd(
         check_rrd_path(rerun)
     path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet, rerun=rerun)
     q = m["quality"]
-    typer.echo(f"{m['mode']}: {m['seed_count']} seeds, {m['cloud_points']} points, "
+    cal = m.get("seed_count_calibrated")
+    typer.echo(f"{m['mode']}: {m['seed_count']} seeds" + (f" (calibrated estimate {cal:.0f})" if cal is not None
+                                                          else "") + f", {m['cloud_points']} points, "
                f"cross-view seed distance {q['cross_view_seed_mm']:.2f} mm (GT-free quality, lower is better)")
     if "gt" in m:
         g = m["gt"]
@@ -794,7 +889,7 @@ def count_cmd(
     from seedmap.errors import InputError
     from seedmap.io.atomic import atomic_output_dir, atomic_write_text
     from seedmap.recon.config import ReconConfig
-    from seedmap.recon.pipeline import recount, seeds_csv_text
+    from seedmap.recon.pipeline import recount_calibrated, seeds_csv_text
 
     base_cfg = results / "config.yaml"
     if config is None and not base_cfg.is_file():
@@ -802,19 +897,24 @@ def count_cmd(
     if config is None and (results / "trajectory.tum").is_file() and not (results / "cloud.ply").is_file():
         raise InputError("a `seedmap slam` result folder; count needs a `seedmap reconstruct` one", results)
     cfg = load_config(ReconConfig, config if config is not None else base_cfg, list(set_ or []))
-    c = recount(results, cfg)
+    c, cal = recount_calibrated(results, cfg)
     t = Table(title=f"seed count: {results}")
-    for col in ("seeds", "median diameter (mm)", "median views/seed", "median spread (mm)"):
+    for col in ("seeds", "calibrated estimate", "median diameter (mm)", "median views/seed", "median spread (mm)"):
         t.add_column(col)
-    t.add_row(str(c.count), f"{np.median(c.diameter) * 1000:.2f}" if c.count else "-",
+    t.add_row(str(c.count), f"{cal.estimate:.0f}" if cal.estimate is not None else "-",
+              f"{np.median(c.diameter) * 1000:.2f}" if c.count else "-",
               f"{np.median(c.n_views):.0f}" if c.count else "-",
               f"{np.median(c.spread) * 1000:.2f}" if c.count else "-")
     Console().print(t)
+    if cal.estimate is None:
+        typer.echo(f"no calibrated estimate: {cal.reason}")
+    elif cal.reason:
+        typer.echo(f"calibrated estimate: {cal.reason}")
     if out is not None:
         with atomic_output_dir(out, overwrite=overwrite) as tmp:
             dump_config(cfg, tmp / "config.yaml")
             atomic_write_text(tmp / "seeds.csv", seeds_csv_text(c))
-            atomic_write_text(tmp / "count.json", json.dumps({"results": str(results), "seed_count": c.count}))
+            atomic_write_text(tmp / "count.json", json.dumps({"results": str(results), **cal.as_dict()}, indent=2))
         typer.echo(f"wrote {out}")
 
 

@@ -254,6 +254,10 @@ class CountConfig(ConfigModel):
                                      description="multiview: the pixel tolerances scaled with the seed size")
 
 
+    calibration: str = Field("auto", description="multiview: calibrated count estimate (seedmap.recon.calibrate): "
+                                                 "auto = the shipped calibration of the run's detector when the run "
+                                                 "matches its detector and counter settings, none, or a file from "
+                                                 "`seedmap train count-calibration`")
     detector_profile: bool = Field(True, description="multiview: apply detector_profiles[detector] on top of these "
                                                      "settings (false = exactly these settings)")
     detector_profiles: dict[str, list[str]] = Field(default_factory=lambda: {k: list(v) for k, v in

@@ -22,6 +22,7 @@ from seedmap.errors import InputError
 from seedmap.geometry import transform_points
 from seedmap.io.atomic import atomic_output_dir, atomic_write_text
 from seedmap.recon.config import ReconConfig
+from seedmap.recon.calibrate import CalibratedCount, calibrate_count, count_features
 from seedmap.recon.count import SeedCount, StereoKeypoints, count_multiview, count_seeds
 from seedmap.recon.register import RegistrationResult, ViewGeometry, estimate_normals, register_views, voxel_down
 from seedmap.recon.stereo import (
@@ -199,6 +200,7 @@ class Reconstruction:
     seconds: dict = field(default_factory=dict)
     keypoints: list[StereoKeypoints | None] | None = None  # per view 2D detections (multiview counting)
     calib: StereoCalib | None = None
+    calibrated: CalibratedCount | None = None  # the count calibration's estimate (seedmap.recon.calibrate)
 
 
 def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) -> Reconstruction:
@@ -231,6 +233,7 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
         cnt = multiview_count_observations(kps, reg.poses, prep.calib, cfg, obs_view, obs_det)
     else:
         cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count, origin=reg.poses[obs_view][:, :3, 3])
+    calibrated = calibrate_count(cfg, count_features(kps, cnt))
     t_count = time.perf_counter() - t0
     # merged cloud; per-point label = counted seed of the detection the pixel belonged to
     px, pc, pl = [], [], []
@@ -262,7 +265,7 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
         mode=cfg.registration.mode, poses=reg.poses, T_fk=prep.T_fk, timestamps=prep.timestamps, registration=reg,
         cloud_xyz=cxyz, cloud_rgb=crgb, cloud_label=clab, obs_xyz=obs_xyz, obs_view=obs_view, obs_diam=obs_diam,
         obs_seed_id=obs_id, count=cnt, quality=q, skipped=prep.skipped, oracle=prep.oracle,
-        keypoints=kps, calib=prep.calib,
+        keypoints=kps, calib=prep.calib, calibrated=calibrated,
         seconds={"registration_total": t_reg, "count": t_count,
                  "sgbm_per_view": float(np.mean(prep.seconds_sgbm)),
                  "icp_per_view": float(np.mean(reg.seconds[1:])) if len(reg.seconds) > 1 else 0.0})
@@ -430,6 +433,7 @@ def report_markdown(rec: Reconstruction, metrics: dict) -> str:
     lines += [f"- views: {len(rec.poses)} ({len(rec.skipped)} skipped)",
               f"- cloud points: {len(rec.cloud_xyz)}",
               f"- seed count: **{rec.count.count}** (from {len(rec.obs_xyz)} per-view detections)",
+              calibrated_count_line(rec.calibrated),
               f"- GT-free quality (lower is better): cross-view seed distance "
               f"{rec.quality['cross_view_seed_mm']:.3f} mm (the recommended score), seed spread "
               f"{rec.quality['seed_spread_mm']:.3f} mm, surface thickness {rec.quality['surface_thickness_mm']:.3f} mm",
@@ -456,7 +460,7 @@ def base_metrics(rec: Reconstruction) -> dict:
         "skipped_views": rec.skipped,
         "registered_views": int(reg.accepted.sum()),
         "registration_notes": reg.notes,
-        "seed_count": rec.count.count,
+        **(rec.calibrated.as_dict() if rec.calibrated is not None else {"seed_count": rec.count.count}),
         "detections_total": int(len(rec.obs_xyz)),
         "cloud_points": int(len(rec.cloud_xyz)),
         "quality": rec.quality,
@@ -515,6 +519,11 @@ def gt_metrics(rec: Reconstruction, root: Path, min_area_px: int) -> dict | None
     out["count_gt_countable"] = countable
     out["count_countable_ape_pct"] = float(abs(rec.count.count - countable) / max(countable, 1) * 100.0)
     out["gt_countable_seeds_definition"] = f">= {min_area_px} px in the left AND right image of >= 2 views"
+    if rec.calibrated is not None and rec.calibrated.estimate is not None:
+        e = rec.calibrated.estimate
+        out["count_calibrated"] = e
+        out["count_calibrated_countable_err_pct"] = float((e - countable) / max(countable, 1) * 100.0)
+        out["count_calibrated_countable_ape_pct"] = abs(out["count_calibrated_countable_err_pct"])
     return out
 
 
@@ -569,11 +578,32 @@ def read_observations(results: str | Path) -> tuple[np.ndarray, np.ndarray, np.n
     return a[:, 1:4], a[:, 0].astype(np.int64), a[:, 4]
 
 
+def calibrated_count_line(c: CalibratedCount | None) -> str:
+    """One report line on the count calibration."""
+    if c is None:
+        return "- calibrated count: none"
+    if c.estimate is None:
+        return f"- calibrated count: none ({c.reason})"
+    note = f"; {c.reason}" if c.reason else ""
+    return (f"- calibrated count: **{c.estimate:.0f}** (count calibration `{Path(c.source).name}`, features: "
+            f"obs_fraction {c.features.obs_fraction:.3f}, seed diameter {c.features.seed_diam_mm:.2f} mm{note})")
+
+
 def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
     """``seedmap count``: count the stored detections again with ``cfg.count``: method ``multiview``
     from ``detections.csv``, ``calib.yaml`` and ``poses_tum.txt``; the 3D methods de-duplicate the
     per-view seed observations of ``observations.csv`` (camera centres for ``rays`` from the poses).
     The ``multiview`` assignment is per left detection of detections.csv (view order)."""
+    return recount_calibrated(results, cfg)[0]
+
+
+def recount_calibrated(results: str | Path, cfg: ReconConfig) -> tuple[SeedCount, CalibratedCount]:
+    """:func:`recount` and the count calibration (``cfg.count.calibration``) applied to it."""
+    cnt, kps = _recount(results, cfg)
+    return cnt, calibrate_count(cfg, count_features(kps, cnt))
+
+
+def _recount(results: str | Path, cfg: ReconConfig) -> tuple[SeedCount, list[StereoKeypoints | None]]:
     xyz, view, diam = read_observations(results)
     origin = None
     if cfg.count.method == "multiview":
@@ -599,7 +629,7 @@ def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
 
                 warnings.warn(f"{d}: not found, so the stereo assignment runs without the appearance term "
                               "(count.mv_appearance_weight); re-run `seedmap reconstruct` to write it", stacklevel=2)
-        return count_multiview(kps, poses, calib, ccfg)
+        return count_multiview(kps, poses, calib, ccfg), kps
     if cfg.count.method == "rays":
         from seedmap.io.trajectory import read_tum
 
@@ -610,4 +640,4 @@ def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
         if len(view) and view.max() >= len(poses):
             raise InputError(f"observations.csv refers to view {view.max()}, poses_tum.txt has {len(poses)}", p)
         origin = poses[view][:, :3, 3]
-    return count_seeds(xyz, view, diam, cfg.count, origin=origin)
+    return count_seeds(xyz, view, diam, cfg.count, origin=origin), []
