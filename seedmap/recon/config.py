@@ -160,6 +160,11 @@ class CountConfig(ConfigModel):
     merge_radius: float = Field(0.004, gt=0, description="rays: never merge groups farther apart (m)")
     max_pair_distance: float = Field(0.012, gt=0, description="rays: never link observations farther apart (m)")
     mv_verify_views: int = Field(2, ge=1, description="multiview: views on each side that verify a stereo match")
+    mv_support_ref_deg: float = Field(15.0, ge=0, description="multiview: view spacing (deg) the minimum supports "
+                                                             "are for (the 24-view circle)")
+    mv_support_density_gain: float = Field(3.0, ge=0, description="multiview: a scan whose views are >= 5 % closer "
+                                                                 "than mv_support_ref_deg adds this x (ref / spacing "
+                                                                 "- 1) to the minimum supports")
     mv_stereo_dv_px: float = Field(2.0, gt=0, description="multiview: max row difference of a left/right match (px)")
     mv_support_sigma_px: float = Field(1.0, gt=0, description="multiview: reprojection scale of the support score (px)")
     mv_min_support: float = Field(1.5, ge=0, description="multiview: min support of a stereo match (sum over the "
