@@ -12,7 +12,12 @@ Fit (what shipped ``fast.json`` in session 13, on the 112 panicles rendered in s
         --summary benchmarks/results/count_calibration_s13_fit.json
 
 ``--features`` picks the model's features; ``--split-tuning`` also reports the fit on the 16 tuning panicles
-(95-99, 111-115, 310-315) scored on the others. ``--score CAL`` instead applies a calibration file to the folders.
+(95-99, 111-115, 310-315) scored on the others. ``--score CAL`` instead applies a calibration file to the folders
+(``--skip 100``: the benchmarks' first panicle is in the shipped fit), e.g. the fresh panicles of session 13::
+
+    python benchmarks/fit_count_calibration.py --dirs results/recon_eval_bench/fast_recon_s7_s13fresh{1,2} \
+        --score seedmap/recon/calibrations/fast.json --skip 100 \
+        --summary benchmarks/results/count_calibration_s13_fresh500-519.json
 """
 
 from __future__ import annotations
@@ -26,8 +31,8 @@ import numpy as np
 TUNING = {95, 96, 97, 98, 99, 111, 112, 113, 114, 115, 310, 311, 312, 313, 314, 315}
 
 
-def load_rows(dirs: list[Path]) -> list[dict]:
-    """One row per panicle (first occurrence): panicle, folder, features, GT countable count."""
+def load_rows(dirs: list[Path], skip: set[int] = frozenset()) -> list[dict]:
+    """One row per panicle (first occurrence, none of ``skip``): panicle, folder, features, GT countable count."""
     from seedmap.recon.calibrate import CountFeatures
 
     rows, seen = [], set()
@@ -35,7 +40,7 @@ def load_rows(dirs: list[Path]) -> list[dict]:
         for p in sorted(d.glob("p*.json"), key=lambda q: int(q.stem[1:])):
             r = json.loads(p.read_text())
             s = r["panicle"]
-            if s in seen:
+            if s in seen or s in skip:
                 continue
             m = r["modes"]["seeds"]
             if "count_features" not in m:
@@ -69,12 +74,14 @@ def main() -> None:
     ap.add_argument("--score", type=Path, help="score this calibration file on the folders instead of fitting")
     ap.add_argument("--split-tuning", action="store_true", help="also fit on the tuning panicles, score the rest")
     ap.add_argument("--summary", type=Path, help="write the numbers as JSON")
+    ap.add_argument("--skip", type=int, nargs="*", default=[], help="leave these panicles out (e.g. 100 when "
+                                                                     "scoring: it is in the shipped fit)")
     a = ap.parse_args()
     from seedmap.recon.calibrate import count_domain, fit_count_calibration, load_count_calibration, \
         save_count_calibration
     from seedmap.recon.config import ReconConfig
 
-    rows = load_rows(a.dirs)
+    rows = load_rows(a.dirs, set(a.skip))
     raw = _raw(rows)
     out: dict = {"dirs": [str(d) for d in a.dirs], "panicles": [r["panicle"] for r in rows], "raw": _stats(raw)}
     if a.score is not None:

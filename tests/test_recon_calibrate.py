@@ -101,9 +101,14 @@ def test_shipped_fast_calibration_applies_to_the_default_fast_run_only(tmp_path)
         cfg = ReconConfig.model_validate(apply_overrides(cfg.model_dump(), ov))
         r = calibrate_count(cfg, f)
         assert r.estimate is None and why in r.reason, (ov, r.reason)
-    # never outside the fitted number of views
+    # a 36-view scan gets the 36-view calibration; never one outside the fitted numbers of views
+    f36 = CountFeatures(2000, 36, int(0.40 * 2000 * 36), 3.5)
+    r = calibrate_count(ReconConfig(detector="fast"), f36)
+    c36 = load_count_calibration(shipped_calibration_dir() / "fast_36views.json")
+    assert r.source.endswith("fast_36views.json") and r.estimate == pytest.approx(c36.estimate(f36))
+    assert c36.views_range == (36, 36) and c36.fit["loo_mape_pct"] < c36.fit["raw_mape_pct"]
     r = calibrate_count(ReconConfig(detector="fast"), CountFeatures(2000, 60, int(0.43 * 2000 * 60), 3.5))
-    assert r.estimate is None and "60 views" in r.reason
+    assert r.estimate is None and "60 views" in r.reason and "fast_36views.json was fitted on scans with 36-36" in r.reason
 
 
 def test_a_calibration_file_must_match_the_run(tmp_path):

@@ -236,35 +236,54 @@ class CalibratedCount:
                 "count_features": self.features.as_dict()}
 
 
+def shipped_calibrations(detector: str) -> list[Path]:
+    """The shipped calibration files of ``detector``: ``DETECTOR.json`` and ``DETECTOR_*.json`` (e.g. one per
+    number of views)."""
+    d = shipped_calibration_dir()
+    return sorted(p for p in d.glob(f"{detector}*.json") if p.stem == detector or p.stem.startswith(f"{detector}_"))
+
+
+def _views_note(cal: CountCalibration, p: Path, views: int) -> str | None:
+    lo, hi = cal.views_range
+    if lo <= views <= hi:
+        return None
+    return f"{p.name} was fitted on scans with {lo}-{hi} views"
+
+
 def calibrate_count(cfg: ReconConfig, feats: CountFeatures) -> CalibratedCount:
-    """Apply ``cfg.count.calibration`` (``auto``: the shipped calibration of the run's detector, if any and if
-    the run is in its domain; ``none``; or a file, which must match the run's domain) to ``feats``."""
+    """Apply ``cfg.count.calibration`` to ``feats``: ``auto`` = the shipped calibration of the run's detector whose
+    domain the run is in and whose fitted numbers of views include the scan's (:func:`shipped_calibrations`);
+    ``none``; or a file, which must match the run's domain. Never outside the fitted numbers of views:
+    ``obs_fraction`` depends on the spacing of the views (the 24-view calibration "corrects" the count of a 6-view
+    scan by -49 %)."""
     choice = cfg.count.calibration
     if choice == "none":
         return CalibratedCount(feats.count, None, None, "count.calibration=none", feats)
     if cfg.count.method != "multiview":
         return CalibratedCount(feats.count, None, None, "calibrations are for the multiview counter", feats)
     dom = count_domain(cfg)
+    hint = " (fit one for your scans with `seedmap train count-calibration`)"
     if choice == "auto":
-        p = shipped_calibration_dir() / f"{cfg.detector}.json"
-        if not p.is_file():
+        files = shipped_calibrations(cfg.detector)
+        if not files:
             return CalibratedCount(feats.count, None, None, f"no shipped calibration for detector {cfg.detector!r}",
                                    feats)
-        cal = load_count_calibration(p)
-        why = cal.domain.mismatch(dom)
-        if why is not None:
-            return CalibratedCount(feats.count, None, None, f"shipped calibration not applied: {why}", feats)
-    else:
-        p = Path(choice)
-        cal = load_count_calibration(p)
-        why = cal.domain.mismatch(dom)
-        if why is not None:
-            raise ConfigError(f"count calibration does not fit this run: {why}", p)
-    lo, hi = cal.views_range
-    if not lo <= feats.views <= hi:
-        # obs_fraction depends on the spacing of the views (a 6-view scan of a panicle whose 24-view scan the
-        # shipped calibration corrects by +4 % is "corrected" by -49 %): no extrapolation
+        reasons = []
+        for p in files:
+            cal = load_count_calibration(p)
+            why = cal.domain.mismatch(dom) or _views_note(cal, p, feats.views)
+            if why is None:
+                return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats)
+            reasons.append(why)
         return CalibratedCount(feats.count, None, None, f"not applied: the scan has {feats.views} views with "
-                               f"detections, {p.name} was fitted on scans with {lo}-{hi} (fit one for your scans "
-                               "with `seedmap train count-calibration`)", feats)
+                               f"detections; shipped calibrations: {'; '.join(reasons)}{hint}", feats)
+    p = Path(choice)
+    cal = load_count_calibration(p)
+    why = cal.domain.mismatch(dom)
+    if why is not None:
+        raise ConfigError(f"count calibration does not fit this run: {why}", p)
+    why = _views_note(cal, p, feats.views)
+    if why is not None:
+        return CalibratedCount(feats.count, None, None, f"not applied: the scan has {feats.views} views with "
+                               f"detections, {why}{hint}", feats)
     return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats)
