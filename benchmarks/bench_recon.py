@@ -85,6 +85,12 @@ mv_dedupe_size=track mv_dedupe_shared=0.7`` on copies of the session-8/9 folders
 and panicle; 70 never-tuned + fresh 190-199 panicles 6.03 -> 6.12 %, not adopted. Panicles 200-204 rendered after the
 freeze (``--eval 100 200 ... 204 --detectors gt fast --modes seeds --data-dir data/recon_s7 --tag s10fresh8``):
 ``..._{gt,fast}_s10_fresh8.json`` (``gt`` 3.66 %, ``fast`` 7.42 %), ``..._fast_s10_new_fresh8.json`` (candidate 7.59 %).
+Session 13 (count calibration, seedmap.recon.calibrate): every multiview count also records its GT-free
+``count_features`` and, where ``count.calibration`` (default auto) applies, ``count_multiview_calibrated``; the
+``--recount`` of the session-11 folders stored the features the shipped ``fast.json`` was fitted on
+(``benchmarks/fit_count_calibration.py``). ``..._fast_s13_fresh{500-509,510-519,530-539}.json``: fresh 24-view panicles;
+``--eval-views 36 --data-dir data/recon_s13_v36``: ``..._{fast,gt}_s13_v36_fresh540-549.json`` (the 36-view support
+rule, ``count.mv_support_density_gain``) and ``..._fast_s13_v36_fresh570-579.json`` (the 36-view calibration).
 """
 
 from __future__ import annotations
