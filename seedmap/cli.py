@@ -313,7 +313,7 @@ def train_count_calibration_cmd(
         if domain is None:
             domain = dom
         elif (why := domain.mismatch(dom)) is not None:
-            raise SeedmapError(f"{r}: differs from {results[0]}: {why.replace('it was fitted', 'that one ran')}")
+            raise SeedmapError(f"{r}: differs from {results[0]}, which ran with {why}")
         if counts is not None:
             g = truth_by.get(str(r).rstrip("/"), truth_by.get(r.name))
             if g is None:
@@ -908,8 +908,6 @@ def count_cmd(
     Console().print(t)
     if cal.estimate is None:
         typer.echo(f"no calibrated estimate: {cal.reason}")
-    elif cal.reason:
-        typer.echo(f"calibrated estimate: {cal.reason}")
     if out is not None:
         with atomic_output_dir(out, overwrite=overwrite) as tmp:
             dump_config(cfg, tmp / "config.yaml")

@@ -94,15 +94,15 @@ class CountDomain(BaseModel):
     count_config_sha256: str
 
     def mismatch(self, other: CountDomain) -> str | None:
-        """Why ``other`` is outside this domain (None: inside)."""
+        """How ``other`` differs from this domain (None: it is inside)."""
         if self.detector != other.detector:
-            return f"it was fitted for detector {self.detector!r}, this run used {other.detector!r}"
+            return f"detector {self.detector!r}, not {other.detector!r}"
         if self.weights_sha256 != other.weights_sha256:
-            return "it was fitted for other detector weights"
+            return "other detector weights"
         if self.detector_config_sha256 != other.detector_config_sha256:
-            return "it was fitted with other detector settings"
+            return "other detector settings"
         if self.count_config_sha256 != other.count_config_sha256:
-            return "it was fitted with other counter settings"
+            return "other counter settings"
         return None
 
 
@@ -226,7 +226,7 @@ class CalibratedCount:
     count: int  # raw: the counted seeds (seeds.csv)
     estimate: float | None  # calibrated count, None = no calibration applied
     source: str | None  # the calibration file applied
-    reason: str  # why none applied ("" when one did)
+    reason: str  # why none was applied ("" when one was)
     features: CountFeatures
 
     def as_dict(self) -> dict:
@@ -271,7 +271,8 @@ def calibrate_count(cfg: ReconConfig, feats: CountFeatures) -> CalibratedCount:
         reasons = []
         for p in files:
             cal = load_count_calibration(p)
-            why = cal.domain.mismatch(dom) or _views_note(cal, p, feats.views)
+            why = cal.domain.mismatch(dom)
+            why = f"{p.name} was fitted with {why}" if why is not None else _views_note(cal, p, feats.views)
             if why is None:
                 return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats)
             reasons.append(why)
@@ -281,7 +282,7 @@ def calibrate_count(cfg: ReconConfig, feats: CountFeatures) -> CalibratedCount:
     cal = load_count_calibration(p)
     why = cal.domain.mismatch(dom)
     if why is not None:
-        raise ConfigError(f"count calibration does not fit this run: {why}", p)
+        raise ConfigError(f"count calibration does not fit this run: it was fitted with {why}", p)
     why = _views_note(cal, p, feats.views)
     if why is not None:
         return CalibratedCount(feats.count, None, None, f"not applied: the scan has {feats.views} views with "
