@@ -908,6 +908,8 @@ def count_cmd(
     Console().print(t)
     if cal.estimate is None:
         typer.echo(f"no calibrated estimate: {cal.reason}")
+    else:
+        typer.echo(f"calibrated estimate: {Path(cal.source).name}, {cal.fitted}")
     if out is not None:
         with atomic_output_dir(out, overwrite=overwrite) as tmp:
             dump_config(cfg, tmp / "config.yaml")

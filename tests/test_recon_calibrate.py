@@ -89,6 +89,7 @@ def test_shipped_fast_calibration_applies_to_the_default_fast_run_only(tmp_path)
     f = CountFeatures(2000, 24, int(0.43 * 2000 * 24), 3.5)
     out = calibrate_count(ReconConfig(detector="fast"), f)
     assert out.estimate == pytest.approx(cal.estimate(f)) and out.source == str(p) and out.reason == ""
+    assert out.fitted.startswith(f"fitted on {len(cal.samples)} panicles with 24-24 views against GT countable seeds")
     # any other counter or detector setting leaves the count uncalibrated, saying why
     for ov, why in ((["count.mv_grow_passes=1"], "counter settings"),  # (mv_link_px: the fast profile sets it)
                     (["detector_overrides=[cnn.domain=arm,cnn.threshold=0.35]"], "detector settings"),
@@ -175,6 +176,8 @@ def test_reconstruct_count_and_train_count_calibration_cli(tmp_path, monkeypatch
     m2 = json.loads((tmp_path / "gt2" / "metrics.json").read_text())
     assert m2["seed_count"] == n and m2["seed_count_calibrated"] == pytest.approx(n * np.exp(-c.intercept), abs=0.06)
     assert m2["count_calibration"] == str(out) and m2["count_calibration_note"] == ""
+    assert m2["count_calibration_fit"] == c.describe() and "fitted on 3 panicles with 6-6 views against counts in" \
+        in (tmp_path / "gt2" / "report.md").read_text()
     g2 = m2["gt"]
     assert g2["count_calibrated_countable_err_pct"] == pytest.approx(
         (g2["count_calibrated"] - g2["count_gt_countable"]) / g2["count_gt_countable"] * 100)

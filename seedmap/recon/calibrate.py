@@ -149,6 +149,13 @@ class CountCalibration(BaseModel):
     def log_ratio(self, f: CountFeatures) -> float:
         return self.intercept + sum(c * f.value(k) for k, c in self.coef.items())
 
+    def describe(self) -> str:
+        """What it was fitted on and how well, in one line (reports)."""
+        loo = self.fit.get("loo_mape_pct")
+        return (f"fitted on {len(self.samples)} panicles with {self.views_range[0]}-{self.views_range[1]} views"
+                + (f" against {self.truth}" if self.truth else "")
+                + (f", leave-one-out MAPE {loo:.1f} %" if loo is not None else ""))
+
     def estimate(self, f: CountFeatures) -> float:
         """The calibrated count of a reconstruction with features ``f``."""
         if f.count == 0:
@@ -228,11 +235,13 @@ class CalibratedCount:
     source: str | None  # the calibration file applied
     reason: str  # why none was applied ("" when one was)
     features: CountFeatures
+    fitted: str = ""  # what the applied calibration was fitted on (CountCalibration.describe)
 
     def as_dict(self) -> dict:
         return {"seed_count": self.count,
                 "seed_count_calibrated": None if self.estimate is None else round(self.estimate, 1),
-                "count_calibration": self.source, "count_calibration_note": self.reason,
+                "count_calibration": self.source, "count_calibration_fit": self.fitted or None,
+                "count_calibration_note": self.reason,
                 "count_features": self.features.as_dict()}
 
 
@@ -274,7 +283,7 @@ def calibrate_count(cfg: ReconConfig, feats: CountFeatures) -> CalibratedCount:
             why = cal.domain.mismatch(dom)
             why = f"{p.name} was fitted with {why}" if why is not None else _views_note(cal, p, feats.views)
             if why is None:
-                return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats)
+                return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats, cal.describe())
             reasons.append(why)
         return CalibratedCount(feats.count, None, None, f"not applied: the scan has {feats.views} views with "
                                f"detections; shipped calibrations: {'; '.join(reasons)}{hint}", feats)
@@ -287,4 +296,4 @@ def calibrate_count(cfg: ReconConfig, feats: CountFeatures) -> CalibratedCount:
     if why is not None:
         return CalibratedCount(feats.count, None, None, f"not applied: the scan has {feats.views} views with "
                                f"detections, {why}{hint}", feats)
-    return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats)
+    return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats, cal.describe())

@@ -584,8 +584,8 @@ def calibrated_count_line(c: CalibratedCount | None) -> str:
         return "- calibrated count: none"
     if c.estimate is None:
         return f"- calibrated count: none ({c.reason})"
-    return (f"- calibrated count: **{c.estimate:.0f}** (count calibration `{Path(c.source).name}`, features: "
-            f"obs_fraction {c.features.obs_fraction:.3f}, seed diameter {c.features.seed_diam_mm:.2f} mm)")
+    return (f"- calibrated count: **{c.estimate:.0f}** (count calibration `{Path(c.source).name}`, {c.fitted}; "
+            f"features: obs_fraction {c.features.obs_fraction:.3f}, seed diameter {c.features.seed_diam_mm:.2f} mm)")
 
 
 def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
