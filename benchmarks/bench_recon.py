@@ -226,15 +226,13 @@ def _attach_descriptors(root: Path, kps: list, cfg) -> None:
             kp.describe(fr.left, fr.right, cfg.mv_desc_size, cfg.mv_desc_grid)
 
 
-def _calibrated(kps: list, cnt, count_set: tuple[str, ...], det: str, detector_set: tuple[str, ...]):  # noqa: ANN202
-    """The count calibration (``count.calibration`` of ``count_set``, default auto) applied to a multiview count,
-    with the domain of the pipeline run these detections came from."""
-    from seedmap.config import apply_overrides
+def _calibrated(kps: list, cnt, count_cfg, det: str, detector_set: tuple[str, ...]):  # noqa: ANN001, ANN202
+    """The count calibration (``count_cfg.calibration``, default auto; ``count_cfg`` before the detector's profile)
+    applied to a multiview count, with the domain of the pipeline run these detections came from."""
     from seedmap.recon.calibrate import calibrate_count, count_features
-    from seedmap.recon.config import CountConfig
 
     cfg = _recon_config(det, detector_set)
-    cfg.count = CountConfig(**apply_overrides({"method": "multiview"}, count_set))
+    cfg.count = count_cfg
     return calibrate_count(cfg, count_features(kps, cnt))
 
 
@@ -253,12 +251,13 @@ def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, ora
     for meth in COUNT_METHODS:
         c1 = time.process_time()
         if meth == "multiview":
-            mv_cfg = CountConfig(**apply_overrides({"method": meth}, count_set)).for_detector(det)
+            base_cfg = CountConfig(**apply_overrides({"method": meth}, count_set))
+            mv_cfg = base_cfg.for_detector(det)
             if mv_cfg.mv_appearance_weight > 0:
                 _attach_descriptors(root, kps, mv_cfg)
             cnt = count_multiview(kps, obs["poses"], calib, mv_cfg)
             n = cnt.count
-            cal = _calibrated(kps, cnt, count_set, det, detector_set)
+            cal = _calibrated(kps, cnt, base_cfg, det, detector_set)
             m["count_features"] = cal.features.as_dict()
             m["count_calibration"] = cal.source
             m["count_calibration_note"] = cal.reason

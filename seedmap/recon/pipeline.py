@@ -233,8 +233,8 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
         cnt = multiview_count_observations(kps, reg.poses, prep.calib, cfg, obs_view, obs_det)
     else:
         cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count, origin=reg.poses[obs_view][:, :3, 3])
-    calibrated = calibrate_count(cfg, count_features(kps, cnt))
     t_count = time.perf_counter() - t0
+    calibrated = calibrate_count(cfg, count_features(kps, cnt))
     # merged cloud; per-point label = counted seed of the detection the pixel belonged to
     px, pc, pl = [], [], []
     for k, v in enumerate(prep.views):
