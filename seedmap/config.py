@@ -19,9 +19,9 @@ T = TypeVar("T", bound="ConfigModel")
 
 
 class ConfigModel(BaseModel):
-    """Base for all seedmap configs: unknown keys are errors, assignments are validated."""
+    """Base for all seedmap configs: unknown keys are errors, assignments are validated, NaN and inf are refused."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, allow_inf_nan=False)
 
 
 def _set_dotted(data: dict, key: str, value: Any) -> None:
@@ -75,7 +75,11 @@ def load_config(
         if not p.is_file():
             raise ConfigError("config file not found", p)
         try:
-            loaded = yaml.safe_load(p.read_text()) or {}
+            loaded = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
+        except UnicodeDecodeError:
+            raise ConfigError("not a UTF-8 text file (a YAML config is expected)", p) from None
+        except OSError as e:
+            raise ConfigError(f"cannot read ({e.strerror or e})", p) from None
         except yaml.YAMLError as e:
             raise ConfigError(f"not valid YAML ({str(e).splitlines()[0]})", p) from None
         if not isinstance(loaded, dict):
