@@ -1,22 +1,10 @@
 """Whole fields: find every range below a folder and run SLAM on each (``seedmap batch``).
 
-A field is a folder tree; a *range* is any path one of seedmap's loaders recognises
-(:func:`seedmap.io.detect_format`: seedmap layout, ROS bags, EuRoC, KITTI, stereo image folders).
-Each range runs :func:`seedmap.slam.pipeline.run_slam` into ``out/<path of the range relative to
-the field>/`` - in parallel local processes (``concurrent.futures.ProcessPoolExecutor``, spawn
-start method: GTSAM/torch state must not be forked) or as Ray tasks on a cluster.
-
-Why it is built like this:
-
-* **Resumable** - a range whose result folder already has ``metrics.json`` (run_slam writes its
-  folder atomically, so that file only exists for a finished run) is not run again; a re-run after
-  a crash or Ctrl-C only does the missing ranges.
-* **Failures are data** - a range that raises is recorded (``status=failed`` and the one-line
-  error) and the batch goes on; the next run retries it.
-* **One summary** - ``summary.csv`` / ``summary.md`` / ``summary.json`` (per range: status, maximum
-  distance mapped, its fraction of the range length, landmarks, distinct GT seeds among them,
-  panicle clusters, frames, wall time) plus the resolved ``config.yaml``, rewritten atomically
-  after every finished range so an interrupted batch still leaves a valid summary.
+A *range* is any path one of seedmap's loaders recognises (:func:`seedmap.io.detect_format`). Each range
+runs :func:`seedmap.slam.pipeline.run_slam` into ``out/<path of the range relative to the field>/``, in
+spawned local processes or as Ray tasks. A range whose folder has ``metrics.json`` is not run again
+(resume); a range that raises is recorded as ``failed`` and the batch goes on. ``summary.csv`` /
+``summary.md`` / ``summary.json`` are rewritten after every finished range.
 """
 
 from __future__ import annotations
@@ -31,6 +19,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from seedmap.errors import ConfigError, InputError
+from seedmap.progress import Progress
 
 __all__ = ["RangeResult", "BatchSummary", "find_ranges", "run_batch", "summarize_result_dir"]
 
@@ -60,6 +49,8 @@ class RangeResult:
 
 @dataclass
 class BatchSummary:
+    """A whole batch: where it ran, how, and one :class:`RangeResult` per range (in field order)."""
+
     field: str
     out: str
     matcher: str
@@ -203,6 +194,7 @@ def _fmt(v: Any, nd: int = 3) -> str:
 
 
 def summary_csv(s: BatchSummary) -> str:
+    """``summary.csv``: one row per range (the :class:`RangeResult` fields)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(_COLS)
@@ -213,6 +205,7 @@ def summary_csv(s: BatchSummary) -> str:
 
 
 def summary_markdown(s: BatchSummary) -> str:
+    """``summary.md``: a headline and a table of the ranges."""
     ok = [r for r in s.ranges if r.status == "ok"]
     fr = [r.mdm_fraction for r in ok if r.mdm_fraction is not None]
     lines = [
@@ -374,12 +367,13 @@ def run_batch(
         return BatchSummary(str(field), str(out), matcher, detector, executor, workers,
                             time.perf_counter() - t0, [results[r] for r in order if r in results])
 
-    with _Progress(progress, len(jobs), f"batch ({len(ranges) - len(jobs)} done earlier)") as advance:
+    with Progress(len(jobs), f"batch ({len(ranges) - len(jobs)} done earlier)", "range", progress) as bar:
         def done(row: dict) -> None:
             r = RangeResult(**row)
             results[r.range] = r
             write_summary(summary(), out)  # an interrupted batch still leaves a valid summary
-            advance(r)
+            bar.note(f"{r.range}: {r.status}")
+            bar.advance()
 
         old = _thread_env(threads)
         try:
@@ -393,26 +387,3 @@ def run_batch(
     s = summary()
     write_summary(s, out)
     return s
-
-
-class _Progress:
-    """Rich progress bar over ranges (or nothing); ``advance(result)`` shows the last finished one."""
-
-    def __init__(self, enabled: bool, total: int, label: str) -> None:
-        self.enabled, self.total, self.label = enabled, total, label
-        self._p = None
-
-    def __enter__(self) -> Callable[[RangeResult], None]:
-        if not self.enabled:
-            return lambda r: None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-        self._p = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                           TextColumn("{task.fields[last]}"))
-        self._p.start()
-        task = self._p.add_task(self.label, total=self.total, last="")
-        return lambda r: self._p.update(task, advance=1, last=f"{r.range}: {r.status}")
-
-    def __exit__(self, *exc) -> None:
-        if self._p is not None:
-            self._p.stop()

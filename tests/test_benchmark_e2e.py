@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from seedmap.eval.benchmark import BenchmarkConfig, paper_ranges, run_benchmark
+from seedmap.eval.benchmark import SCENE_OVERRIDES, BenchmarkConfig, paper_ranges, run_benchmark
 
 SEEDMAP = [sys.executable, "-m", "seedmap.cli"]
 TINY = ["world.length=0.3", "world.gap=0.3", "camera.scale=0.12", "panicle.seeds_min=300",
@@ -48,7 +48,7 @@ def test_scene_variations_are_held_out():
     assert [s.length_m for s in paper] == [3.56, 5.00, 4.42, 4.10, 4.78, 3.94, 5.03, 4.43]
     assert len(hard) == 8
     assert not {s.seed for s in paper} & {s.seed for s in hard}
-    assert all(set(BenchmarkConfig().scene_overrides) <= set(s.sim_overrides) for s in hard)
+    assert all(set(SCENE_OVERRIDES) <= set(s.sim_overrides) for s in hard)
     assert len({s.dataset for s in specs}) == 16
 
 

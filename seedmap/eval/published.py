@@ -1,12 +1,7 @@
-"""The paper's published maximum-distance-mapped numbers (Tables 1 and 2), for side-by-side tables.
+"""The paper's published maximum-distance-mapped numbers (Tables 1 and 2, real field data).
 
-These were measured on **real field data** (eight sorghum ranges, 5 Hz flash stereo), not on our
-simulated ranges: they are shown next to our numbers as a reference, never mixed into our means.
-``None`` is the paper's "fail" (the method could not even start mapping).
-
-The paper's abstract says "78 % ... compared to 38 % with ORB-SLAM2"; its Table 1 shows 38 % for
-SIFT + BF and its Table 2 about 6 % for ORB-SLAM2, so the abstract's attribution is a slip. We keep
-the tables' numbers.
+Shown beside the simulated results, never mixed into their means; ``None`` is the paper's "fail".
+Why these and not the abstract's figures: ``docs/method/benchmark.md``.
 """
 
 from __future__ import annotations
