@@ -858,8 +858,10 @@ def reconstruct_cmd(
     path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet, rerun=rerun)
     q = m["quality"]
     cal = m.get("seed_count_calibrated")
-    typer.echo(f"{m['mode']}, detector {detector_label(cfg.detector, m['oracle_detector'])}: {m['seed_count']} seeds" + (f" (calibrated estimate {cal:.0f})" if cal is not None
-                                                          else "") + f", {m['cloud_points']} points, "
+    det = detector_label(cfg.detector, m["oracle_detector"])
+    typer.echo(f"{m['mode']}, detector {det}: {m['seed_count']} seeds" + (f" (calibrated estimate {cal:.0f})"
+                                                                         if cal is not None else "")
+               + f", {m['cloud_points']} points, "
                f"cross-view seed distance {q['cross_view_seed_mm']:.2f} mm (GT-free quality, lower is better)")
     if "gt" in m:
         g = m["gt"]

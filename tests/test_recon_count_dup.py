@@ -39,7 +39,7 @@ def _with_duplicates(rng: np.random.Generator, offset_m: float, share: float = 0
 
 def test_view_sharing_join_absorbs_a_second_detection_half_a_seed_away():
     # duplicates 0.45 diameters (1.8 mm, ~4 px) from the centre: two consistent tracks through the
-    # same views; the session-6/7 join radius 0.4 leaves them, the fast profile's 0.6 joins them
+    # same views; a join radius of 0.4 leaves them, the fast profile's 0.6 joins them
     views, poses, countable = _with_duplicates(np.random.default_rng(3), 0.45 * SEED_D)
     n = len(countable)
     off = count_multiview(views, poses, CALIB, CountConfig(mv_dedupe_shared=0.0)).count

@@ -282,7 +282,7 @@ def multiview_count_observations(kps: list[StereoKeypoints | None], poses: np.nd
                                  cfg: ReconConfig, obs_view: np.ndarray, obs_det: np.ndarray) -> SeedCount:
     """Count method ``multiview`` on the views' 2D detections; the returned ``assignment`` is given
     per stereo seed observation (``obs_view``, ``obs_det`` = view and left detection index), like the
-    3D methods' (it labels the merged cloud and observations.csv)."""
+    density counter's (it labels the merged cloud and observations.csv)."""
     cnt = count_multiview(kps, poses, calib, cfg.count.for_detector(cfg.detector), depth_range=depth_range(cfg))
     offset = np.concatenate([[0], np.cumsum([len(k.left) if k is not None else 0 for k in kps])]).astype(np.int64)
     obs_view = np.asarray(obs_view, np.int64)

@@ -81,7 +81,8 @@ def triangulate_tracks(roots: np.ndarray, alive: np.ndarray, view: np.ndarray, u
     """Triangulates every track (observations sharing a ``root``) from the rays of all its left and right
     keypoints and drops observations reprojecting farther than ``mv_max_reproj_px`` -- only the worst one of
     each track per round (one wrong observation pulls the point and makes the good ones look bad too), up to
-    REPROJ_ROUNDS rounds. Dropped and dead (``~alive``) observations become singleton groups. Returns (kept mask, group per observation, world point (m) per group)."""
+    REPROJ_ROUNDS rounds. Dropped and dead (``~alive``) observations become singleton groups. Returns (kept mask,
+    group per observation, world point (m) per group)."""
     n = len(view)
     cL, dL = view_rays(calib, poses, view, uvL[:, 0], uvL[:, 1], right=False)
     cR, dR = view_rays(calib, poses, view, uR, uvL[:, 1], right=True)
