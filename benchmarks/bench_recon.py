@@ -1,96 +1,20 @@
-"""Panicle reconstruction speed: seconds per view of SGBM, full-cloud ICP and seed-centre ICP,
-measured in one run on one simulated arm scan; ICP costs are also given as ratios to SGBM.
+"""Panicle reconstruction benchmark.
 
-Writes JSON (``--out``, default ``benchmarks/results/bench_recon.json``).
-Usage: ``python benchmarks/bench_recon.py [--dataset DIR | --views N --seed S]`` -- without
-``--dataset`` a scan is simulated into a temporary folder first (not timed).
+Speed (default): seconds per view of SGBM, full-cloud ICP and seed-centre ICP, measured in one run on one
+simulated arm scan; ICP costs are also given as ratios to SGBM. Writes JSON (``--out``, default
+``benchmarks/results/bench_recon.json``). ``python benchmarks/bench_recon.py [--dataset DIR | --views N --seed S]``
+-- without ``--dataset`` a scan is simulated into a temporary folder first (not timed).
 
-``--eval 100 101 ... 110`` instead runs the accuracy evaluation: simulates the missing scans
-(24 views, default errors) into ``data/recon_eval/pSEED``, reconstructs each in the modes fk, full
-and seeds (``--modes``), with each detector of ``--detectors`` (default gt), counts seeds with every
-count method (``multiview`` on the 2D detections and the SGBM disparity at their left keypoints, cached
-per panicle in ``cache/pSEED_kps_HASH.npz``, HASH over the detector config and weights and the SGBM config),
-and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench/DETECTOR/``.
-``--count-set key=value ...`` overrides the multiview CountConfig (e.g. the optional second linking
-pass ``mv_relink_px=3 mv_relink_min_support=2.5``); the summary records them (``multiview_count_set``).
-The multiview count applies the detector's CountConfig profile (``CountConfig.for_detector``, as the
-pipeline does). The first seed is the tuning panicle (it calibrates the naive 2D baseline and is left
-out of the means). Panicles 95-100 are the counting tuning set, 101-110 the held-out set, 111-115 fresh
-panicles first evaluated with the frozen session-4 counter (``--eval 100 111 112 113 114 115``).
-Copies of the summaries of the last reported runs: ``benchmarks/results/bench_recon_eval_{gt,fast,fast-classic}.json``
-(``fast``: a full ``--modes seeds`` run with the CNN ``fast`` detector; ``fast-classic``: a full run with the
-classical fast detector); ``..._{gt,fast,fast-classic}_{surface5,merge3,merge3_surface5}.json``: ``--recount`` with
-``--count-set mv_surface_tol=0.005`` / ``mv_merge_px=3`` / both (``multiview`` only differs; session 3);
-``..._{gt,fast,fast-classic}_fresh.json``: the fresh panicles 111-115 (session 4).
-Session 5 (scale-aware ``gt`` tolerances, ``CountConfig.mv_scale_ref_px``, tuned on 95-100 and 111-115):
-``..._s5_{heldout,fresh,fresh2}.json`` = ``--recount`` on 100 101-110, 100 111-115 and on the panicles
-116-125 rendered after the freeze (``--eval 100 116 ... 125 --modes seeds`` reconstructs them;
-``_fresh2`` summaries of ``fast`` / ``fast-classic`` cover 116-120).
-Session 6 (``fast`` = the arm-scan network ``cnn.domain=arm`` at threshold 0.35, the pipeline's default, with the
-re-tuned ``fast`` count profile; tuned on 95-99 + 111-115 with ``--detector-set cnn.weights=W cnn.threshold=0.35
---tag T --recount --count-set ...``): ``..._fast_s6_{tuning,heldout,fresh2}.json`` = ``--eval 100 95 ... 99 111
-... 115`` / ``100 101 ... 110`` / ``100 116 ... 125 --detectors fast --modes seeds --tag s6``;
-``..._{gt,fast-classic,fast}_s6_fresh3.json`` = the panicles 150-159 rendered after the freeze and run once
-(``--eval 100 150 ... 159 --detectors gt fast-classic fast --modes seeds --tag fresh6``).
-Session 7 (arm scans rendered with the exposure set for the 0.3 m stand-off, ``PanicleScanConfig.exposure="auto"``,
-into ``--data-dir data/recon_s7``; results in ``results/recon_eval_bench/DETECTOR_recon_s7_TAG``):
-``..._{gt,fast,fast-classic}_s7_{tuning,heldout,heldout2,fresh3,fresh4}.json`` = ``--eval 100 95 ... 99 111 ... 115``
-(tag ``s7tune``) / ``100 101 ... 110`` / ``100 116 ... 125`` / ``100 150 ... 159`` / ``100 160 ... 169`` (rendered
-this session, run once after the freeze) ``--modes seeds --data-dir data/recon_s7``; ``..._gt_s7_heldout.json`` also
-holds the fk / full / seeds registration modes. ``bench_recon_s7.json``: the speed run (``--out``) on a scan
-simulated with the auto exposure.
-Session 7b (issue #6, duplicate ``fast`` keypoints on dark varieties; the ``fast`` profile joins view-sharing
-tracks within 0.6 median diameters instead of 0.4, chosen on the tuning panicles only):
-``..._fast_s7b_{tuning,heldout,heldout2,fresh3,fresh4}.json`` = ``--recount`` of copies of the session-7 folders
-(tags ``s7btune`` ... ``s7bfresh4``) with the new profile; ``..._{gt,fast}_s7b_fresh5.json`` = the panicles
-170-179 rendered after that freeze and run once (``--eval 100 170 ... 179 --detectors gt fast --modes seeds
---data-dir data/recon_s7 --tag s7bfresh5``).
-Session 8 (issue #6; the ``fast`` profile adds the row-residual weighting of the stereo assignment and the second
-linking pass, ``mv_row_sigma_px=1.5 mv_relink_px=10 mv_relink_min_support=1.5``, chosen on the tuning panicles
-only): ``..._fast_s8_{tuning,heldout,heldout2,fresh3,fresh4,fresh5}.json`` = ``--recount`` of copies of the session-7b
-folders (tags ``s8tune`` ... ``s8fresh5``); ``..._{gt,fast}_s8_fresh6.json`` = the panicles 180-189 rendered after
-that freeze and run once (``--eval 100 180 ... 189 --detectors gt fast --modes seeds --data-dir data/recon_s7 --tag
-s8fresh6``); ``..._fast_s7b_fresh6.json`` = the session-7b profile on them for comparison (``--recount --tag
-s7bfresh6 --count-set detector_profile=false`` plus that profile's eight keys). ``..._fast_s8_ft1_tuning.json``: the arm network fine-tuned with ``--peak-box-radius 1`` (not adopted),
-``--detector-set cnn.weights=data/cnn_s8/ft_pbr1/fast_cnn.onnx --tag s8ft1`` under the session-7b profile.
-Session 9 (issue #6, detector side; the count profile unchanged): the over-count is a property of the RED variety with
-large seeds (never-tuned panicles with seeds >= 4.4 mm: red +10.2 % signed, brown -1.6, tan -5.7, white +2.2), and
-the tuning set 95-99 + 111-115 holds no red panicle (6 brown, 3 white, 1 tan) and the arm training scans 130-139 one
-large red one; extra TUNING-only red panicles 310-315 (``seedmap simulate panicle --config
-data/recon_s7/p96/gt/scan.yaml --seed N --views 24 --set 'sim.panicle.seed_colors=[red]' --out
-data/arm_train_s9/pN``; ``p100`` linked in) are run with ``--data-dir data/arm_train_s9``. Candidates (arm network
-fine-tuned with ``seedmap train fast-cnn ... --init fast_cnn_arm.onnx --lr 5e-4 --steps 2000``, extra scans of
-large-seeded dark panicles): ``..._fast_s9_{ft1,ft1t35,ft2}_{tuning,red}.json`` and ``..._fast_s9_shipped_red.json``
-(``--detector-set cnn.weights=W [cnn.threshold=0.35] --tag s9NAMEtune / s9NAMEred``). The frozen ``ft2`` =
-``seedmap/detect/weights/fast_cnn_arm_s9.onnx`` (opt-in, ``--set cnn.weights=fast_cnn_arm_s9.onnx``), run once:
-``..._fast_s9_arm_never.json`` (``--eval 100 101 ... 110 116 ... 125 150 ... 189 --detectors fast --modes seeds
---data-dir data/recon_s7 --detector-set cnn.weights=fast_cnn_arm_s9.onnx --tag s9armnever``),
-``..._fast_s9_arm_fresh7.json`` (same on 190-199, tag ``s9armfresh7``), ``..._{gt,fast}_s9_fresh7.json`` (panicles
-190-199 rendered after the freeze, ``--eval 100 190 ... 199 --detectors gt fast --modes seeds --data-dir
-data/recon_s7 --tag s9fresh7``), ``..._fast_s9_sets.json`` (per set and panicle, shipped network from the session-8
-runs vs the s9 network). The s9 network halves the red over-count (+10.2 -> +4.0 % on the six large-seeded red
-panicles) but lowers every count by about 1-2 points, so it is not the default (70 panicles 6.03 -> 5.86 %; 101-110
-4.33 -> 5.49 %).
-Session 10 (issue #6; helper E): the red tuning-only scans 310-315 and the arm training scans 300-319 were rendered
-with ``--config`` of a session-7 ``scan.yaml`` (camera scale 0.25, wind off; only the colours and
-``seed_diameter_min`` differ), so the ``--set sim.*`` bug fixed in commit 12ece9a did not touch them.
-``..._fast_s10_lever1.json``: counter settings on the tuning panicles 95-99 + 111-115 and red 310-315 (cached shipped
-keypoints, ``data/cnn_s10_arm/tune.py``, keys applied after the ``fast`` profile); ``..._fast_s10_B1_{tuning,red}.json``:
-an arm network fine-tuned gently with a small red share (``seedmap train fast-cnn`` on the session-7 mix plus red
-large-seeded scans 300, 303, 316, 317, ``--init fast_cnn_arm.onnx --lr 2e-4 --steps 1000 --arm-fraction 0.4``, 231 s
-CPU; ``--detector-set cnn.weights=data/cnn_s10_arm/B1/fast_cnn.onnx cnn.threshold=0.4``): tuning 4.84 -> 5.23 %, red
-5.13 -> 6.34 % (every count lower, as in session 9), rejected. Frozen: ``mv_dedupe_size=track mv_dedupe_shared=0.7``
-(tuning + red 4.95 -> 4.88 %), run once (``--recount --count-set detector_profile=false <fast profile keys>
-mv_dedupe_size=track mv_dedupe_shared=0.7`` on copies of the session-8/9 folders): ``..._fast_s10_sets.json`` per set
-and panicle; 70 never-tuned + fresh 190-199 panicles 6.03 -> 6.12 %, not adopted. Panicles 200-204 rendered after the
-freeze (``--eval 100 200 ... 204 --detectors gt fast --modes seeds --data-dir data/recon_s7 --tag s10fresh8``):
-``..._{gt,fast}_s10_fresh8.json`` (``gt`` 3.66 %, ``fast`` 7.42 %), ``..._fast_s10_new_fresh8.json`` (candidate 7.59 %).
-Session 13 (count calibration, seedmap.recon.calibrate): every multiview count also records its GT-free
-``count_features`` and, where ``count.calibration`` (default auto) applies, ``count_multiview_calibrated``; the
-``--recount`` of the session-11 folders stored the features the shipped ``fast.json`` was fitted on
-(``benchmarks/fit_count_calibration.py``). ``..._fast_s13_fresh{500-509,510-519,530-539}.json``: fresh 24-view panicles;
-``--eval-views 36 --data-dir data/recon_s13_v36``: ``..._{fast,gt}_s13_v36_fresh540-549.json`` (the 36-view support
-rule, ``count.mv_support_density_gain``) and ``..._fast_s13_v36_fresh570-579.json`` (the 36-view calibration).
+Accuracy (``--eval 100 101 ... 110``): simulates the missing scans (``--eval-views``, default 24) into
+``DATA_DIR/pSEED``, reconstructs each in the registration modes of ``--modes`` (fk, full, seeds) with each detector
+of ``--detectors`` (default gt), counts seeds with both count methods -- ``multiview`` (the default counter, with the
+detector's profile and the count calibration, as the pipeline runs it) and ``density`` (the paper's) -- and the naive
+2D baseline (detections / detections per seed of the first panicle, which calibrates it and is left out of the
+means), and writes per-panicle JSON and ``summary.json`` into ``results/recon_eval_bench/DETECTOR[_TAG]/``. The 2D
+detections (with the SGBM disparity at the left keypoints) are cached per panicle in ``cache/pSEED_kps_HASH.npz``,
+HASH over the detector config and weights and the SGBM config; ``--recount`` re-runs only the counting on cached
+reconstructions, ``--count-set key=value`` overrides the multiview CountConfig, ``--detector-set key=value`` the
+detector config. The evaluation protocol and the measured numbers: docs/method/counting.md.
 """
 
 from __future__ import annotations
@@ -105,8 +29,7 @@ from pathlib import Path
 import numpy as np
 
 
-COUNT_METHODS = ("density", "tracks", "rays", "multiview")
-METHODS_3D = ("density", "tracks", "rays")  # de-duplicate per-view 3D centres (multiview counts 2D detections)
+COUNT_METHODS = ("density", "multiview")
 
 
 DEFAULT_DATA_DIR = Path("data/recon_eval")
@@ -194,7 +117,7 @@ def _count_diagnostics(obs: dict, root: Path, gt_ids: np.ndarray) -> dict:
     from seedmap.geometry import invert, transform_points
     from seedmap.io.seedmap_dataset import SeedmapDataset
     from seedmap.recon.config import CountConfig
-    from seedmap.recon.count import count_seeds
+    from seedmap.recon.count import count_density
     from seedmap.sim.panicle_scan import gt_rest_poses
 
     sid, view, poses = obs["seed_id"], obs["view"], obs["poses"]
@@ -207,23 +130,9 @@ def _count_diagnostics(obs: dict, root: Path, gt_ids: np.ndarray) -> dict:
     pos = dict(zip(seeds.seed_id.tolist(), seeds.xyz))
     T = invert(pose_errors(poses, gt_rest_poses(root)).T_align)
     true_xyz = transform_points(T, np.array([pos[i] for i in sid[ok]]).reshape(-1, 3))
-    origin = poses[view[ok]][:, :3, 3]
-    for meth in METHODS_3D:
-        out[f"count_{meth}_true_positions"] = count_seeds(true_xyz, view[ok], obs["diam"][ok],
-                                                          CountConfig(method=meth), origin=origin).count
+    out["count_density_true_positions"] = count_density(true_xyz, view[ok], obs["diam"][ok],
+                                                        CountConfig(method="density")).count
     return out
-
-
-def _attach_descriptors(root: Path, kps: list, cfg) -> None:
-    """Context descriptors (``CountConfig.mv_desc_size`` / ``mv_desc_grid``) of cached keypoints, from the
-    scan's images, as the pipeline computes them when it prepares a view (in place; not cached)."""
-    from seedmap.io.seedmap_dataset import SeedmapDataset
-
-    ds = SeedmapDataset(root)
-    for i, kp in enumerate(kps):
-        if kp is not None and cfg.mv_desc_size > 0:
-            fr = ds[i]
-            kp.describe(fr.left, fr.right, cfg.mv_desc_size, cfg.mv_desc_grid)
 
 
 def _calibrated(kps: list, cnt, count_cfg, det: str, detector_set: tuple[str, ...]):  # noqa: ANN001, ANN202
@@ -244,17 +153,14 @@ def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, ora
     the profile of detector ``det`` as the pipeline applies it), against both references."""
     from seedmap.config import apply_overrides
     from seedmap.recon.config import CountConfig
-    from seedmap.recon.count import count_multiview, count_seeds
+    from seedmap.recon.count import count_density, count_multiview
 
     m: dict = {}
-    origin = obs["poses"][obs["view"]][:, :3, 3]
     for meth in COUNT_METHODS:
         c1 = time.process_time()
         if meth == "multiview":
             base_cfg = CountConfig(**apply_overrides({"method": meth}, count_set))
             mv_cfg = base_cfg.for_detector(det)
-            if mv_cfg.mv_appearance_weight > 0:
-                _attach_descriptors(root, kps, mv_cfg)
             cnt = count_multiview(kps, obs["poses"], calib, mv_cfg)
             n = cnt.count
             cal = _calibrated(kps, cnt, base_cfg, det, detector_set)
@@ -269,7 +175,7 @@ def _count_fields(obs: dict, gt_vis: int, countable: np.ndarray, root: Path, ora
                 m["count_multiview_calibrated_countable_err"] = (e - len(countable)) / max(len(countable), 1) * 100
                 m["count_multiview_calibrated_cpu_s"] = 0.0
         else:
-            n = count_seeds(obs["xyz"], obs["view"], obs["diam"], CountConfig(method=meth), origin=origin).count
+            n = count_density(obs["xyz"], obs["view"], obs["diam"], CountConfig(method=meth)).count
         m[f"count_{meth}_cpu_s"] = time.process_time() - c1
         m[f"count_{meth}"] = n
         m[f"count_{meth}_ape"] = abs(n - gt_vis) / max(gt_vis, 1) * 100
@@ -317,8 +223,8 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
              data_dir: Path = DEFAULT_DATA_DIR) -> dict:
     """Accuracy of fk / full / seeds registration and of seed counting on simulated scans, per detector.
 
-    Count references (both reported): ``gt_visible`` = centre visible and >= 12 px in >= 1 left view
-    (session 1); ``gt_countable`` = >= 12 px in the left AND right image of >= 2 views (what a 3D
+    Count references (both reported): ``gt_visible`` = centre visible and >= 12 px in >= 1 left view;
+    ``gt_countable`` = >= 12 px in the left AND right image of >= 2 views (what a 3D
     counter that needs stereo depth and a second view can count). Each reconstruction's seed
     observations are cached (``cache/pSEED_MODE.npz``); ``recount`` re-runs only the counting on them.
     ``detector_set``: detector config overrides appended to the pipeline's (e.g. ``cnn.weights=W.onnx``);
@@ -352,7 +258,7 @@ def run_eval(seeds: list[int], views: int = 24, detectors: tuple[str, ...] = ("g
                 (out / f"p{s}.json").write_text(json.dumps(row, indent=1))
                 rows.append(row)
                 continue
-            if not root.exists():  # (data/recon_eval keeps the sessions 1-6 field gain, exposure=1.0)
+            if not root.exists():  # (data/recon_eval keeps the flash-saturated field gain, exposure=1.0)
                 expo = 1.0 if Path(data_dir) == DEFAULT_DATA_DIR else "auto"
                 simulate_panicle(PanicleScanConfig(seed=s, arm=ArmConfig(views=views), exposure=expo), root,
                                  progress=True)
@@ -408,8 +314,8 @@ def main() -> None:
                                                                   "(key=value) added to the pipeline's")
     ap.add_argument("--tag", default="", help="--eval: write to results/recon_eval_bench/DETECTOR_TAG")
     ap.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
-                    help="--eval: scans are read from / simulated into DATA_DIR/pSEED (sessions 1-6: data/recon_eval, "
-                         "flash-saturated; session 7: data/recon_s7, auto exposure)")
+                    help="--eval: scans are read from / simulated into DATA_DIR/pSEED (data/recon_eval: "
+                         "flash-saturated field gain; any other folder: auto exposure)")
     ap.add_argument("--dataset", type=Path, default=None, help="existing arm scan dataset")
     ap.add_argument("--views", type=int, default=12, help="views of the speed run's scan")
     ap.add_argument("--eval-views", type=int, default=24, help="--eval: views of the scans it simulates")
@@ -435,7 +341,7 @@ def main() -> None:
 
             root = Path(tmp) / "scan"
             simulate_panicle(PanicleScanConfig(seed=args.seed, arm=ArmConfig(views=args.views)), root, progress=True)
-        cfg = ReconConfig()
+        cfg = ReconConfig(detector="gt")  # (speeds of SGBM and ICP, not of a detector)
         t0 = time.perf_counter()
         prep = prepare_scan(root, cfg, progress=True)
         prep_s = time.perf_counter() - t0

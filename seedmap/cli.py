@@ -828,7 +828,8 @@ def reconstruct_cmd(
                                              "--set joints=FILE --set arm=FILE)."),
     out: Path = typer.Option(..., "--out", "-o", help="Results folder to create."),
     register: Optional[str] = typer.Option(None, "--register", help="fk | full | seeds (default seeds)."),
-    detector: Optional[str] = typer.Option(None, "--detector", help="Detector name (default gt = ORACLE)."),
+    detector: Optional[str] = typer.Option(None, "--detector", help="Detector name (default fast; gt = the "
+                                                                    "simulator's ground truth, ORACLE)."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing results folder."),
@@ -840,7 +841,7 @@ def reconstruct_cmd(
     from seedmap.config import load_config
     from seedmap.errors import ConfigError
     from seedmap.recon.config import ReconConfig
-    from seedmap.recon.pipeline import run_reconstruct
+    from seedmap.recon.pipeline import detector_label, run_reconstruct
 
     extra = list(set_ or [])
     if register is not None:
@@ -857,8 +858,10 @@ def reconstruct_cmd(
     path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet, rerun=rerun)
     q = m["quality"]
     cal = m.get("seed_count_calibrated")
-    typer.echo(f"{m['mode']}: {m['seed_count']} seeds" + (f" (calibrated estimate {cal:.0f})" if cal is not None
-                                                          else "") + f", {m['cloud_points']} points, "
+    det = detector_label(cfg.detector, m["oracle_detector"])
+    typer.echo(f"{m['mode']}, detector {det}: {m['seed_count']} seeds" + (f" (calibrated estimate {cal:.0f})"
+                                                                         if cal is not None else "")
+               + f", {m['cloud_points']} points, "
                f"cross-view seed distance {q['cross_view_seed_mm']:.2f} mm (GT-free quality, lower is better)")
     if "gt" in m:
         g = m["gt"]
@@ -878,7 +881,7 @@ def count_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out folder."),
 ) -> None:
     """Seed count of a reconstruction, re-run from its folder (default method multiview on detections.csv;
-    e.g. --set count.mv_link_px=2.5, or --set count.method=rays for the 3D de-duplication)."""
+    e.g. --set count.mv_link_px=2.5, or --set count.method=density for the paper's 3D de-duplication)."""
     import json
 
     import numpy as np
@@ -889,7 +892,7 @@ def count_cmd(
     from seedmap.errors import InputError
     from seedmap.io.atomic import atomic_output_dir, atomic_write_text
     from seedmap.recon.config import ReconConfig
-    from seedmap.recon.pipeline import recount_calibrated, seeds_csv_text
+    from seedmap.recon.pipeline import detector_label, recount_calibrated, seeds_csv_text
 
     base_cfg = results / "config.yaml"
     if config is None and not base_cfg.is_file():
@@ -898,7 +901,7 @@ def count_cmd(
         raise InputError("a `seedmap slam` result folder; count needs a `seedmap reconstruct` one", results)
     cfg = load_config(ReconConfig, config if config is not None else base_cfg, list(set_ or []))
     c, cal = recount_calibrated(results, cfg)
-    t = Table(title=f"seed count: {results}")
+    t = Table(title=f"seed count: {results} (detector {detector_label(cfg.detector)})")
     for col in ("seeds", "calibrated estimate", "median diameter (mm)", "median views/seed", "median spread (mm)"):
         t.add_column(col)
     t.add_row(str(c.count), f"{cal.estimate:.0f}" if cal.estimate is not None else "-",

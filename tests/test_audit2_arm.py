@@ -138,7 +138,7 @@ def test_bad_user_scan_is_one_line(user_scan, tmp_path, monkeypatch, capsys, cas
         lines[2], lines[3] = lines[3], lines[2]
         jp.write_text("\n".join(lines) + "\n")
     elif case == "gt_oracle":
-        det = []
+        det = ["--detector", "gt"]
     out = tmp_path / "out"
     assert _run(["reconstruct", scan, *det, "-q", "--out", out], monkeypatch) == 2
     line = _error_line(capsys)

@@ -91,11 +91,12 @@ def test_shipped_fast_calibration_applies_to_the_default_fast_run_only(tmp_path)
     assert out.estimate == pytest.approx(cal.estimate(f)) and out.source == str(p) and out.reason == ""
     assert out.fitted.startswith(f"fitted on {len(cal.samples)} panicles with 24-24 views against GT countable seeds")
     # any other counter or detector setting leaves the count uncalibrated, saying why
-    for ov, why in ((["count.mv_grow_passes=1"], "counter settings"),  # (mv_link_px: the fast profile sets it)
+    for ov, why in ((["count.mv_dedupe=0.8"], "counter settings"),  # (mv_link_px: the fast profile sets it)
+                    (["cloud.max_depth=0.5"], "counter settings"),  # (the depth range seeds are looked for in)
                     (["detector_overrides=[cnn.domain=arm,cnn.threshold=0.35]"], "detector settings"),
                     (["detector=gt"], "no shipped calibration"),
                     (["count.calibration=none"], "none"),
-                    (["count.method=rays"], "multiview")):
+                    (["count.method=density"], "multiview")):
         cfg = ReconConfig(detector="fast")
         from seedmap.config import apply_overrides
 
@@ -109,7 +110,27 @@ def test_shipped_fast_calibration_applies_to_the_default_fast_run_only(tmp_path)
     assert r.source.endswith("fast_36views.json") and r.estimate == pytest.approx(c36.estimate(f36))
     assert c36.views_range == (36, 36) and c36.fit["loo_mape_pct"] < c36.fit["raw_mape_pct"]
     r = calibrate_count(ReconConfig(detector="fast"), CountFeatures(2000, 60, int(0.43 * 2000 * 60), 3.5))
-    assert r.estimate is None and "60 views" in r.reason and "fast_36views.json was fitted on scans with 36-36" in r.reason
+    assert r.estimate is None and "60 views" in r.reason
+    assert "fast_36views.json was fitted on scans with 36-36" in r.reason
+
+
+def test_restamp_rewrites_only_the_settings_hashes(tmp_path):
+    import shutil
+
+    from seedmap.recon.calibrate import restamp_shipped_calibrations
+
+    shutil.copy(shipped_calibration_dir() / "fast.json", tmp_path / "fast.json")
+    assert restamp_shipped_calibrations(tmp_path) == []  # the shipped files match the default settings
+    cal = load_count_calibration(tmp_path / "fast.json")
+    stale = cal.model_copy(update={"domain": cal.domain.model_copy(update={"count_config_sha256": "0" * 64,
+                                                                           "detector_config_sha256": "1" * 64})})
+    save_count_calibration(stale, tmp_path / "fast.json")
+    assert restamp_shipped_calibrations(tmp_path) == [tmp_path / "fast.json"]
+    assert load_count_calibration(tmp_path / "fast.json") == cal  # coefficients, fit and samples unchanged
+    wrong = cal.model_copy(update={"domain": cal.domain.model_copy(update={"weights_sha256": "2" * 64})})
+    save_count_calibration(wrong, tmp_path / "fast.json")
+    with pytest.raises(ConfigError, match="refit"):
+        restamp_shipped_calibrations(tmp_path)
 
 
 def test_a_calibration_file_must_match_the_run(tmp_path):
@@ -142,8 +163,8 @@ def test_reconstruct_count_and_train_count_calibration_cli(tmp_path, monkeypatch
                     "--set", "sim.camera.scale=0.18"], monkeypatch) == 0
     res, res_gt = tmp_path / "fast", tmp_path / "gt"
     assert run_cli(["reconstruct", data, "--detector", "fast", "--out", res, "-q"], monkeypatch) == 0
-    assert run_cli(["reconstruct", data, "--out", res_gt, "-q", "--set", "detector_overrides=[gt.min_area_px=6]"],
-                   monkeypatch) == 0
+    assert run_cli(["reconstruct", data, "--detector", "gt", "--out", res_gt, "-q", "--set",
+                    "detector_overrides=[gt.min_area_px=6]"], monkeypatch) == 0
     m = json.loads((res / "metrics.json").read_text())
     # the shipped fast calibration was fitted on 24-view scans: a 6-view scan stays uncalibrated, saying why
     f = m["count_features"]
@@ -171,7 +192,7 @@ def test_reconstruct_count_and_train_count_calibration_cli(tmp_path, monkeypatch
     j = json.loads((tmp_path / "cnt" / "count.json").read_text())
     assert j["seed_count_calibrated"] == pytest.approx(j["seed_count"] * np.exp(-c.intercept), abs=0.06)
     assert abs(j["seed_count"] - n) <= 0.01 * n  # (a recount of the stored detections: CSV rounding)
-    assert run_cli(["reconstruct", data, "--out", tmp_path / "gt2", "-q", "--set",
+    assert run_cli(["reconstruct", data, "--detector", "gt", "--out", tmp_path / "gt2", "-q", "--set",
                     "detector_overrides=[gt.min_area_px=6]", "--set", f"count.calibration={out}"], monkeypatch) == 0
     m2 = json.loads((tmp_path / "gt2" / "metrics.json").read_text())
     assert m2["seed_count"] == n and m2["seed_count_calibrated"] == pytest.approx(n * np.exp(-c.intercept), abs=0.06)

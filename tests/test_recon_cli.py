@@ -45,7 +45,7 @@ def test_simulate_reconstruct_count_end_to_end(tmp_path, monkeypatch):
                  "--set", "sim.camera.scale=0.18"], monkeypatch) == 0
     for f in ("joints.csv", "arm.yaml", "gt/poses_tum.txt", "gt/poses_fk_tum.txt", "gt/surface_points.npy"):
         assert (data / f).is_file(), f
-    assert _run(["reconstruct", str(data), "--register", "seeds", "--out", str(res), "-q",
+    assert _run(["reconstruct", str(data), "--register", "seeds", "--detector", "gt", "--out", str(res), "-q",
                  "--set", "detector_overrides=[gt.min_area_px=6]"], monkeypatch) == 0
     for f in ("config.yaml", "metrics.json", "cloud.ply", "seeds.csv", "poses_tum.txt", "report.md",
               "detections.csv", "calib.yaml"):  # the last two: `seedmap count` with the multiview method
@@ -58,6 +58,6 @@ def test_simulate_reconstruct_count_end_to_end(tmp_path, monkeypatch):
     assert _run(["count", str(res), "--set", "count.min_observations=1", "--out", str(tmp_path / "c")],
                 monkeypatch) == 0
     assert json.loads((tmp_path / "c" / "count.json").read_text())["seed_count"] >= m["seed_count"]
-    # the 3D de-duplication methods still count from the same folder
-    assert _run(["count", str(res), "--set", "count.method=rays", "--out", str(tmp_path / "c2")], monkeypatch) == 0
+    # the paper's 3D de-duplication counts from the same folder
+    assert _run(["count", str(res), "--set", "count.method=density", "--out", str(tmp_path / "c2")], monkeypatch) == 0
     assert json.loads((tmp_path / "c2" / "count.json").read_text())["seed_count"] > 0

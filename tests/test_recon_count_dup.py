@@ -1,8 +1,7 @@
 """Duplicate detections of one seed (issue #6: the ``fast`` CNN fires twice on dark seeds) in the
 ``multiview`` count, on the synthetic 24-view cylinder scan of test_recon_multiview (touching 4 mm
 seeds, neighbours >= 0.96 diameters apart): the view-sharing track join (``mv_dedupe_shared``, the
-``fast`` profile's 0.6 median diameters since session 7b) and the size-scaled keypoint merge
-(``mv_merge_size``)."""
+``fast`` profile's 0.6 median diameters)."""
 
 from __future__ import annotations
 
@@ -11,7 +10,7 @@ from test_recon_multiview import CALIB, SEED_D, scan  # pytest puts tests/ on sy
 
 from seedmap.geometry import invert
 from seedmap.recon.config import CountConfig
-from seedmap.recon.count import StereoKeypoints, count_multiview, merge_close_keypoints
+from seedmap.recon.count import StereoKeypoints, count_multiview
 
 
 def _with_duplicates(rng: np.random.Generator, offset_m: float, share: float = 0.33, big: float = 1.0):
@@ -40,7 +39,7 @@ def _with_duplicates(rng: np.random.Generator, offset_m: float, share: float = 0
 
 def test_view_sharing_join_absorbs_a_second_detection_half_a_seed_away():
     # duplicates 0.45 diameters (1.8 mm, ~4 px) from the centre: two consistent tracks through the
-    # same views; the session-6/7 join radius 0.4 leaves them, the fast profile's 0.6 joins them
+    # same views; a join radius of 0.4 leaves them, the fast profile's 0.6 joins them
     views, poses, countable = _with_duplicates(np.random.default_rng(3), 0.45 * SEED_D)
     n = len(countable)
     off = count_multiview(views, poses, CALIB, CountConfig(mv_dedupe_shared=0.0)).count
@@ -61,25 +60,3 @@ def test_view_sharing_join_keeps_touching_seeds_apart():
     joined = count_multiview(views, poses, CALIB, CountConfig(mv_dedupe_shared=0.6)).count
     assert joined == plain
     assert abs(joined - len(countable)) <= 0.03 * len(countable), (joined, len(countable))
-
-
-def test_size_scaled_merge_joins_one_seeds_keypoints_but_not_touching_seeds():
-    # three 8-px detections: two on one seed 2.4 px apart (0.3 sizes), a touching seed 8 px away;
-    # a 4-px detection 2 px from a third: 0.5 of its own size, merged only at factor > 0.5
-    left = np.array([[100.0, 50.0], [102.4, 50.0], [110.0, 50.0], [200.0, 80.0], [202.0, 80.0]])
-    size = np.array([8.0, 8.0, 8.0, 4.0, 8.0])
-    kp = StereoKeypoints(left, left - [30.0, 0.0], size, np.array([30.0, np.nan, 30.0, 30.0, 31.0]))
-    m, lab = merge_close_keypoints(kp, 0.0, size_factor=0.4)
-    assert lab[0] == lab[1] and len({lab[0], lab[2], lab[3], lab[4]}) == 4
-    assert np.allclose(m.left[lab[0]], [101.2, 50.0]) and m.left_disp[lab[0]] == 30.0
-    assert len(m.right) == 3  # right keypoints: 0.4 x the median left size (8 px) = 3.2 px joins 2.4 and 2 px
-    m2, lab2 = merge_close_keypoints(kp, 0.0, size_factor=0.6)
-    assert lab2[3] == lab2[4] and lab2[2] != lab2[0]
-    # a pixel cap (mv_merge_px) limits the size-scaled radius
-    _, lab3 = merge_close_keypoints(kp, 2.0, size_factor=0.4)
-    assert lab3[0] != lab3[1]
-    # through count_multiview: the assignment still indexes the original left detections
-    views, poses, countable = _with_duplicates(np.random.default_rng(5), 0.15 * SEED_D)
-    res = count_multiview(views, poses, CALIB, CountConfig(mv_merge_size=0.3))
-    assert len(res.assignment) == sum(len(v.left) for v in views)
-    assert abs(res.count - len(countable)) <= 0.03 * len(countable), (res.count, len(countable))

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seedmap.errors import ConfigError
-from seedmap.recon.config import SCALED_PX_KEYS, CountConfig
+from seedmap.recon.config import CountConfig
 from seedmap.recon.count import StereoKeypoints, count_multiview, scaled_tolerances, size_scale
+from seedmap.recon.count.multiview import SCALED_PX_KEYS
 from test_recon_multiview import CALIB, scan
 
 
@@ -52,27 +52,23 @@ def test_larger_seeds_count_within_tolerance_only_with_scaled_tolerances():
     assert scaled - fixed >= 0.03 * n
 
 
-def test_scale_factor_is_clipped_applied_once_and_checks_its_keys():
+def test_scale_factor_is_clipped_and_applied_once():
     kp = [StereoKeypoints(np.zeros((3, 2)), np.zeros((3, 2)), np.array([14.0, 14.0, 14.0])), None]
     cfg = CountConfig(mv_scale_ref_px=7.0)
-    assert size_scale(kp, cfg) == pytest.approx(1.6)  # 2.0 clipped to mv_scale_max
-    assert size_scale(kp, cfg.model_copy(update={"mv_scale_max": 3.0})) == pytest.approx(2.0)
-    assert size_scale(kp, cfg.model_copy(update={"mv_scale_power": 0.5, "mv_scale_max": 3.0})) == \
-        pytest.approx(2.0 ** 0.5)
+    assert size_scale(kp, cfg) == pytest.approx(1.6)  # 2.0 clipped to SCALE_MAX
+    assert size_scale(kp, cfg.model_copy(update={"mv_scale_power": 0.5})) == pytest.approx(2.0 ** 0.5)
     small = [StereoKeypoints(np.zeros((1, 2)), np.zeros((1, 2)), np.array([3.5]))]
-    assert size_scale(small, cfg) == 1.0  # never tighter than configured (mv_scale_min)
+    assert size_scale(small, cfg) == 1.0  # never tighter than configured (SCALE_MIN)
     assert size_scale(kp, CountConfig()) == 1.0  # off by default
     s = scaled_tolerances(kp, cfg)
     assert s.mv_scale_ref_px == 0.0  # applied once
     for k in SCALED_PX_KEYS:
         assert getattr(s, k) == pytest.approx(1.6 * getattr(cfg, k))
     assert s.mv_support_sigma_px == cfg.mv_support_sigma_px  # not a scaled tolerance
-    with pytest.raises(ConfigError, match="mv_scale_keys"):
-        scaled_tolerances(kp, cfg.model_copy(update={"mv_scale_keys": ["min_observations"]}))
 
 
 def test_gt_and_fast_profiles_scale_with_the_seed_size_and_fast_classic_does_not():
-    """(session 7: on auto-exposed arm scans the arm network's boxes follow the seed size, so ``fast`` scales too)"""
+    """On auto-exposed arm scans the arm network's boxes follow the seed size, so ``fast`` scales too."""
     cfg = CountConfig()
     assert cfg.for_detector("gt").mv_scale_ref_px == 7.0
     assert cfg.for_detector("fast").mv_scale_ref_px == 6.0 and cfg.for_detector("fast").mv_scale_power == 1.5

@@ -1,4 +1,4 @@
-"""The multiview counter's view-spacing rule (seedmap.recon.count.support_shift, session 13)."""
+"""The multiview counter's view-spacing rule (seedmap.recon.count.support_shift)."""
 
 from __future__ import annotations
 
@@ -25,16 +25,14 @@ def _circle(n: int, radius: float = 0.3) -> np.ndarray:
 
 
 def test_view_spacing_and_support_shift():
-    cfg = CountConfig()
     assert view_spacing_deg(_circle(24)) == pytest.approx(15.0)
     assert view_spacing_deg(_circle(36)) == pytest.approx(10.0)
     assert np.isnan(view_spacing_deg(_circle(1)))
-    assert support_shift(_circle(24), cfg) == 0.0  # the reference: unchanged
-    assert support_shift(_circle(25), cfg) == 0.0  # < 5 % denser: unchanged
-    assert support_shift(_circle(36), cfg) == pytest.approx(3.0 * 0.5)
-    assert support_shift(_circle(48), cfg) == pytest.approx(3.0 * 1.0)
-    assert support_shift(_circle(12), cfg) == 0.0  # sparser scans are not shifted
-    assert support_shift(_circle(36), CountConfig(mv_support_density_gain=0)) == 0.0
+    assert support_shift(_circle(24)) == 0.0  # the reference: unchanged
+    assert support_shift(_circle(25)) == 0.0  # < 5 % denser: unchanged
+    assert support_shift(_circle(36)) == pytest.approx(3.0 * 0.5)
+    assert support_shift(_circle(48)) == pytest.approx(3.0 * 1.0)
+    assert support_shift(_circle(12)) == 0.0  # sparser scans are not shifted
 
 
 def test_sparse_scans_warn():

@@ -9,7 +9,7 @@ import pytest
 
 from seedmap.geometry import invert
 from seedmap.recon.config import CountConfig, ReconConfig
-from seedmap.recon.count import StereoKeypoints, count_multiview, count_seeds, triangulate_rays
+from seedmap.recon.count import StereoKeypoints, count_multiview, triangulate_rays
 from seedmap.records import StereoCalib
 
 CALIB = StereoCalib(fx=645.75, fy=644.5, cx=502.875, cy=381.05, baseline=0.11, width=1024, height=750)
@@ -132,15 +132,13 @@ def test_stereo_matches_are_chosen_by_the_neighbouring_views():
     assert np.mean(true_l == true_r) > 0.97
 
 
-def test_multiview_edge_cases_and_the_3d_entry_point():
+def test_multiview_edge_cases():
     views, poses, _, _, _ = scan(np.random.default_rng(3))
     empty = [StereoKeypoints(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)) for _ in range(VIEWS)]
     assert count_multiview(empty, poses, CALIB, CountConfig()).count == 0
     assert count_multiview([None] * VIEWS, poses, CALIB, CountConfig()).count == 0
     with pytest.raises(ValueError, match="poses"):
         count_multiview(views, poses[:3], CALIB, CountConfig())
-    with pytest.raises(ValueError, match="count_multiview"):
-        count_seeds(np.zeros((1, 3)), np.zeros(1), np.ones(1), CountConfig(method="multiview"))
     assert ReconConfig().count.method == "multiview"
 
 
@@ -245,7 +243,7 @@ def test_joint_links_count_seeds_whose_stereo_depth_is_biased():
 
 def test_growing_stays_inside_the_arc_of_views_of_a_track():
     # at the end of its arc a seed turns away and its foreshortened neighbour projects where it would
-    # be: growing beyond the arc claims the neighbour (impure tracks), filling gaps inside it does not
+    # be: growing only fills gaps inside the arc, so the tracks stay pure
     views, poses, ids_l, _, _ = scan(np.random.default_rng(0))
     lid = np.concatenate(ids_l)
 
@@ -254,7 +252,6 @@ def test_growing_stays_inside_the_arc_of_views_of_a_track():
         return float(np.mean([np.unique(lid[cnt.assignment == s]).size == 1 for s in range(cnt.count)]))
 
     assert purity(CountConfig()) > 0.98
-    assert purity(CountConfig(mv_grow_fill_only=False)) < 0.95
 
 
 def test_detector_profiles_are_applied_once_and_can_be_switched_off():
@@ -269,8 +266,9 @@ def test_detector_profiles_are_applied_once_and_can_be_switched_off():
 
 
 def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
-    """Session 6: the pipeline's detector overrides select the CNN's arm-scan weights (threshold 0.4 since session 7) while
-    plain ``fast`` keeps the field network; ``fast`` and ``fast-cnn`` count with twice the pixel tolerances (scaled with the seed size since session 7)."""
+    """The pipeline's detector overrides select the CNN's arm-scan weights (threshold 0.4) while plain ``fast``
+    keeps the field network; ``fast`` and ``fast-cnn`` count with twice the pixel tolerances, scaled with the
+    seed size."""
     from seedmap.detect import make_detector
 
     rc = ReconConfig(detector="fast")
@@ -282,51 +280,5 @@ def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
         c = rc.count.for_detector(name)
         assert c.mv_stereo_dv_px == 2 * plain.mv_stereo_dv_px and c.mv_link_px == 2 * plain.mv_link_px
         assert c.mv_max_reproj_px == 2 * plain.mv_max_reproj_px and c.mv_grow_px == 2 * plain.mv_grow_px
-        assert c.mv_merge_px == 0.0 and c.mv_dedupe_shared == 0.6 and c.mv_min_support == 0.5
+        assert c.mv_dedupe_shared == 0.6 and c.mv_min_support == 0.5
         assert c.mv_scale_ref_px == 6.0 and c.mv_scale_power == 1.5
-
-
-def _duplicate_fraction(ds, dets: dict, min_px: float) -> float:
-    """Share of the detectable GT seed-views (>= ``min_px`` visible px) carrying two or more keypoints."""
-    n_dup = n_seed = 0
-    for (i, cam), d in dets.items():
-        sid = ds.gt_seed_id_image(i, cam)
-        inst = ds.gt_instances(i, cam)
-        big = inst.seed_id[inst.area >= min_px]
-        kp = np.round(d.keypoints).astype(int)
-        hit = sid[np.clip(kp[:, 1], 0, sid.shape[0] - 1), np.clip(kp[:, 0], 0, sid.shape[1] - 1)]
-        ids, cnt = np.unique(hit[hit >= 0], return_counts=True)
-        n_dup += int(np.isin(ids[cnt >= 2], big).sum())
-        n_seed += len(big)
-    return n_dup / max(n_seed, 1)
-
-
-def test_opt_in_s9_arm_network_is_chosen_by_name_and_doubles_fewer_dark_large_seeds(tmp_path):
-    """Session 9 (issue #6): ``--set cnn.weights=fast_cnn_arm_s9.onnx`` (a bare shipped name) selects the arm network
-    fine-tuned with extra scans of large-seeded red panicles, next to the reconstruction's arm overrides. On a 3-view
-    scan of such a panicle (seed 161 forced red, seeds 4.2-5 mm; ~5 s) it finds the seeds' boxes at least as well as
-    the default arm network and puts two keypoints on fewer seed-views (measured: F1 0.601 -> 0.616, seed-views with
-    >= 2 keypoints 13.9 -> 12.5 %). It stays opt-in: on the tuning panicles it counted worse (README, session 9)."""
-    from seedmap.detect import make_detector
-    from seedmap.detect.config import min_visible_seed_px
-    from seedmap.eval.detect_metrics import evaluate_detections
-    from seedmap.io.seedmap_dataset import SeedmapDataset
-    from seedmap.sim.panicle_scan import PanicleScanConfig, simulate_panicle
-
-    cfg = PanicleScanConfig(seed=161)
-    cfg.arm.views = 3
-    cfg.sim.panicle.seed_colors = ["red"]
-    cfg.sim.panicle.seed_diameter_min = 0.0042
-    ds = SeedmapDataset(simulate_panicle(cfg, tmp_path / "p", progress=False))
-    min_px = min_visible_seed_px(ds.calib.width)
-    rc = ReconConfig(detector="fast")
-    f1, dup = {}, {}
-    for w in ("", "fast_cnn_arm_s9.onnx"):
-        det = make_detector("fast", overrides=list(rc.detector_overrides) + ([f"cnn.weights={w}"] if w else []))
-        assert det.path.name == (w or "fast_cnn_arm.onnx") and det.cfg.threshold == 0.4
-        dets = {(i, "left"): det.detect(ds[i].left) for i in range(len(ds))}
-        f1[w] = evaluate_detections(ds, dets, 0.5, "greedy", min_px).f1
-        dup[w] = _duplicate_fraction(ds, dets, min_px)
-    assert f1["fast_cnn_arm_s9.onnx"] >= f1[""] - 0.005, f1
-    assert dup["fast_cnn_arm_s9.onnx"] < dup[""] - 0.005, dup
-    assert 0.05 < dup[""] < 0.3  # the scan is one where the default network doubles seeds

@@ -70,7 +70,8 @@ def test_reconstruct_rerun_and_report(tmp_path, monkeypatch):
     assert _run(["simulate", "panicle", "--out", str(scan), "--views", "4", "--seed", "2",
                  "--set", "sim.camera.scale=0.12", "-q"], monkeypatch) == 0
     out, rrd = tmp_path / "res", tmp_path / "recon.rrd"
-    assert _run(["reconstruct", str(scan), "--out", str(out), "--rerun", str(rrd), "-q"], monkeypatch) == 0
+    assert _run(["reconstruct", str(scan), "--out", str(out), "--detector", "gt", "--rerun", str(rrd), "-q"],
+                monkeypatch) == 0
     m = json.loads((out / "metrics.json").read_text())
     _html_checks(out / "report.html", f"{m['seed_count']} seeds counted", "forward kinematics")
     ents = rrd_entity_paths(rrd)

@@ -1,9 +1,9 @@
-"""Count calibration: from the multiview counter's seed count to an estimate of the true count (session 13).
+"""Count calibration: from the multiview counter's seed count to an estimate of the true count.
 
 Why: with the ``fast`` detector the counter's error on a panicle is the balance of seeds the detector never
 reaches (partly hidden seeds, mostly on dense, large-seeded panicles) and ghost tracks (mostly on red varieties).
 Over 112 simulated panicles that balance ranges from -19 % to +19 %, and the detector's reach explains it almost
-alone (README, issue #6). Two numbers the counter sees without ground truth follow it:
+alone (docs/method/counting.md). Two numbers the counter sees without ground truth follow it:
 
 * ``obs_fraction`` = left detections over all views / (count x views): how many of the views each counted seed is
   detected in, on average. An open panicle whose seeds are seen from most directions scores high; its seeds are
@@ -22,6 +22,10 @@ their SHA-256 (:class:`CountDomain`) and a calibration is applied only where the
 picks the shipped one for the ``fast`` detector's default settings; a mismatch leaves the count uncalibrated and
 says why). ``seedmap train count-calibration`` fits one from ``seedmap reconstruct`` results; the file also keeps
 the fit's own error and its leave-one-out error, so a user sees how good it is before trusting it.
+
+When the counter's or the detector's settings change shape (a field added or removed, same behaviour), the shipped
+files are re-stamped with the new hashes, coefficients untouched: :func:`restamp_shipped_calibrations`, or
+``python -m seedmap.recon.calibrate --restamp``.
 """
 
 from __future__ import annotations
@@ -124,11 +128,40 @@ def count_domain(cfg: ReconConfig) -> CountDomain:
     d = dcfg.model_dump()
     if isinstance(d.get("cnn"), dict):
         d["cnn"].pop("weights", None)  # the file's hash stands for it (a path differs between machines)
-    c = cfg.count.for_detector(cfg.detector).model_dump()
-    for k in ("calibration", "detector_profile", "detector_profiles"):  # (the profile is applied in c already)
-        c.pop(k, None)
     return CountDomain(detector=cfg.detector, weights_sha256=weights, detector_config_sha256=_sha(d),
-                       count_config_sha256=_sha(c))
+                       count_config_sha256=_sha(counter_settings(cfg)))
+
+
+def counter_settings(cfg: ReconConfig) -> dict:
+    """The counter's resolved settings that a calibration depends on: the count config with the detector's
+    profile applied (``calibration`` and ``detector_profile`` excluded) and the depth range seeds are looked
+    for in (m)."""
+    c = cfg.count.for_detector(cfg.detector).model_dump()
+    for k in ("calibration", "detector_profile"):  # (the profile is applied in c already)
+        c.pop(k, None)
+    c["depth_range"] = [cfg.cloud.min_depth, cfg.cloud.max_depth]
+    return c
+
+
+def restamp_shipped_calibrations(directory: str | Path | None = None) -> list[Path]:
+    """Re-stamp every calibration file in ``directory`` (default: the shipped ones) with the domain of the
+    DEFAULT reconstruction config of its detector, keeping its coefficients, fit and samples. Run it after a
+    change that renames or removes settings without changing results (the hashes change, the counts do not);
+    returns the files rewritten."""
+    from seedmap.recon.config import ReconConfig
+
+    d = Path(directory) if directory is not None else shipped_calibration_dir()
+    out = []
+    for p in sorted(d.glob("*.json")):
+        cal = load_count_calibration(p)
+        dom = count_domain(ReconConfig(detector=cal.domain.detector))
+        if dom.weights_sha256 != cal.domain.weights_sha256:
+            raise ConfigError("the detector's weights differ from the ones it was fitted with: refit it "
+                              "(`seedmap train count-calibration`), a re-stamp would hide that", p)
+        if dom != cal.domain:
+            save_count_calibration(cal.model_copy(update={"domain": dom}), p)
+            out.append(p)
+    return out
 
 
 class CountCalibration(BaseModel):
@@ -297,3 +330,22 @@ def calibrate_count(cfg: ReconConfig, feats: CountFeatures) -> CalibratedCount:
         return CalibratedCount(feats.count, None, None, f"not applied: the scan has {feats.views} views with "
                                f"detections, {why}{hint}", feats)
     return CalibratedCount(feats.count, cal.estimate(feats), str(p), "", feats, cal.describe())
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m seedmap.recon.calibrate --restamp [DIR]``: :func:`restamp_shipped_calibrations`."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m seedmap.recon.calibrate", description=main.__doc__)
+    ap.add_argument("--restamp", action="store_true", help="re-stamp the calibration files with the current "
+                                                           "default settings' hashes (coefficients unchanged)")
+    ap.add_argument("dir", nargs="?", default=None, help="folder of calibration files (default: the shipped ones)")
+    a = ap.parse_args(argv)
+    if not a.restamp:
+        ap.error("nothing to do (pass --restamp)")
+    done = restamp_shipped_calibrations(a.dir)
+    print("\n".join(f"re-stamped {p}" for p in done) or "every calibration file already matches")
+
+
+if __name__ == "__main__":
+    main()

@@ -23,8 +23,9 @@ from seedmap.geometry import transform_points
 from seedmap.io.atomic import atomic_output_dir, atomic_write_text
 from seedmap.recon.config import ReconConfig
 from seedmap.recon.calibrate import CalibratedCount, calibrate_count, count_features
-from seedmap.recon.count import SeedCount, StereoKeypoints, count_multiview, count_seeds
-from seedmap.recon.register import RegistrationResult, ViewGeometry, estimate_normals, register_views, voxel_down
+from seedmap.recon.count import SeedCount, StereoKeypoints, count_density, count_multiview
+from seedmap.recon.register import (FULL_VOXEL, NORMAL_RADIUS, RegistrationResult, ViewGeometry, estimate_normals,
+                                    register_views, voxel_down)
 from seedmap.recon.stereo import (
     SeedObservations,
     ViewCloud,
@@ -37,6 +38,15 @@ from seedmap.records import StereoCalib
 
 JOINTS_FILE = "joints.csv"
 ARM_FILE = "arm.yaml"
+#: views with fewer valid 3D points are skipped
+MIN_VIEW_POINTS = 500
+
+
+def detector_label(name: str, oracle: bool | None = None) -> str:
+    """The detector's name as reports and the console show it: ``gt (ORACLE)`` for the ground-truth oracle."""
+    if oracle is None:
+        oracle = name == "gt"
+    return f"{name} (ORACLE)" if oracle else name
 
 
 def scan_files(root: str | Path, cfg: ReconConfig | None = None) -> tuple[Path, Path]:
@@ -143,7 +153,6 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         from tqdm import tqdm
 
         bar = tqdm(total=len(ds), desc="views (SGBM + seeds)", unit="view")
-    count_cfg = cfg.count.for_detector(cfg.detector)  # (context descriptors for the multiview counter)
     for i in it:
         frame = ds[i]
         t0 = time.perf_counter()
@@ -156,21 +165,18 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         vc = disparity_to_cloud(disp, frame.left, ds.calib, cfg.cloud, labels)
         if bar is not None:
             bar.update(1)
-        if len(vc) < cfg.min_view_points:
-            skipped.append({"view": i, "reason": f"only {len(vc)} valid 3D points (min {cfg.min_view_points})"})
+        if len(vc) < MIN_VIEW_POINTS:
+            skipped.append({"view": i, "reason": f"only {len(vc)} valid 3D points (min {MIN_VIEW_POINTS})"})
             views.append(None)
             continue
         vc = _downsample_view(vc, cfg.cloud.voxel_size)
-        so = seed_centres(disp, sdet.left, ds.calib, cfg.seeds, cfg.cloud, sdet.right)
-        reg_xyz = voxel_down(vc.xyz, cfg.registration.full_voxel)
+        so = seed_centres(disp, sdet.left, ds.calib, cfg.cloud)
+        reg_xyz = voxel_down(vc.xyz, FULL_VOXEL)
         # seed ICP uses the measured front-surface points of the seeds: seen from neighbouring views
         # they are nearly the same points, while the radius push-back adds view-dependent errors
-        geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, cfg.registration.normal_radius), so.surface_xyz)
+        geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, NORMAL_RADIUS), so.surface_xyz)
         views.append(PreparedView(vc, so, geo, len(sdet.left),
-                                  StereoKeypoints.from_detections(sdet.left, sdet.right, disp,
-                                                                  images=(frame.left, frame.right),
-                                                                  desc_size=count_cfg.mv_desc_size,
-                                                                  desc_grid=count_cfg.mv_desc_grid)))
+                                  StereoKeypoints.from_detections(sdet.left, sdet.right, disp)))
     if bar is not None:
         bar.close()
     if all(v is None for v in views):
@@ -201,6 +207,7 @@ class Reconstruction:
     keypoints: list[StereoKeypoints | None] | None = None  # per view 2D detections (multiview counting)
     calib: StereoCalib | None = None
     calibrated: CalibratedCount | None = None  # the count calibration's estimate (seedmap.recon.calibrate)
+    detector: str = ""  # the detector's name
 
 
 def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) -> Reconstruction:
@@ -232,7 +239,7 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
     if cfg.count.method == "multiview":
         cnt = multiview_count_observations(kps, reg.poses, prep.calib, cfg, obs_view, obs_det)
     else:
-        cnt = count_seeds(obs_xyz, obs_view, obs_diam, cfg.count, origin=reg.poses[obs_view][:, :3, 3])
+        cnt = count_density(obs_xyz, obs_view, obs_diam, cfg.count)
     t_count = time.perf_counter() - t0
     calibrated = calibrate_count(cfg, count_features(kps, cnt))
     # merged cloud; per-point label = counted seed of the detection the pixel belonged to
@@ -265,7 +272,7 @@ def reconstruct(prep: PreparedScan, cfg: ReconConfig, progress: bool = False) ->
         mode=cfg.registration.mode, poses=reg.poses, T_fk=prep.T_fk, timestamps=prep.timestamps, registration=reg,
         cloud_xyz=cxyz, cloud_rgb=crgb, cloud_label=clab, obs_xyz=obs_xyz, obs_view=obs_view, obs_diam=obs_diam,
         obs_seed_id=obs_id, count=cnt, quality=q, skipped=prep.skipped, oracle=prep.oracle,
-        keypoints=kps, calib=prep.calib, calibrated=calibrated,
+        keypoints=kps, calib=prep.calib, calibrated=calibrated, detector=cfg.detector,
         seconds={"registration_total": t_reg, "count": t_count,
                  "sgbm_per_view": float(np.mean(prep.seconds_sgbm)),
                  "icp_per_view": float(np.mean(reg.seconds[1:])) if len(reg.seconds) > 1 else 0.0})
@@ -275,8 +282,8 @@ def multiview_count_observations(kps: list[StereoKeypoints | None], poses: np.nd
                                  cfg: ReconConfig, obs_view: np.ndarray, obs_det: np.ndarray) -> SeedCount:
     """Count method ``multiview`` on the views' 2D detections; the returned ``assignment`` is given
     per stereo seed observation (``obs_view``, ``obs_det`` = view and left detection index), like the
-    3D methods' (it labels the merged cloud and observations.csv)."""
-    cnt = count_multiview(kps, poses, calib, cfg.count.for_detector(cfg.detector))
+    density counter's (it labels the merged cloud and observations.csv)."""
+    cnt = count_multiview(kps, poses, calib, cfg.count.for_detector(cfg.detector), depth_range=depth_range(cfg))
     offset = np.concatenate([[0], np.cumsum([len(k.left) if k is not None else 0 for k in kps])]).astype(np.int64)
     obs_view = np.asarray(obs_view, np.int64)
     obs_det = np.asarray(obs_det, np.int64)
@@ -329,38 +336,6 @@ def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints |
     return out
 
 
-def save_descriptors(path: Path, kps: list[StereoKeypoints | None]) -> None:
-    """The keypoints' context descriptors (``descriptors.npz``, beside detections.csv, same order): per
-    view ``left_K`` / ``right_K`` int8 arrays (descriptor x 127; they are unit-norm, so no entry exceeds 1)."""
-    arrs = {"n_views": np.array(len(kps))}
-    for k, kp in enumerate(kps):
-        if kp is not None and kp.left_desc is not None:
-            arrs[f"left_{k}"] = np.round(kp.left_desc * 127).astype(np.int8)
-            arrs[f"right_{k}"] = np.round(kp.right_desc * 127).astype(np.int8)
-    np.savez_compressed(path, **arrs)
-
-
-def read_descriptors(path: Path, kps: list[StereoKeypoints | None]) -> None:
-    """Attach the descriptors of ``descriptors.npz`` (:func:`save_descriptors`) to ``kps`` in place
-    (re-normalised after the int8 rounding); a view whose keypoint counts differ is an error."""
-    try:
-        z = np.load(path)
-    except (OSError, ValueError) as e:
-        raise InputError(f"descriptors.npz is unreadable ({e})", path) from None
-    with z:
-        for k, kp in enumerate(kps):
-            if kp is None or f"left_{k}" not in z:
-                continue
-            dl, dr = z[f"left_{k}"].astype(np.float32), z[f"right_{k}"].astype(np.float32)
-            if len(dl) != len(kp.left) or len(dr) != len(kp.right):
-                raise InputError(f"descriptors.npz view {k}: {len(dl)}/{len(dr)} descriptors for "
-                                 f"{len(kp.left)}/{len(kp.right)} detections in detections.csv", path)
-            for d in (dl, dr):
-                n = np.linalg.norm(d, axis=1, keepdims=True)
-                d /= np.maximum(n, 1e-6)
-            kp.left_desc, kp.right_desc = dl, dr
-
-
 # ------------------------------------------------------------------------------------------------
 # writing
 # ------------------------------------------------------------------------------------------------
@@ -402,8 +377,6 @@ def write_results(rec: Reconstruction, out: Path, cfg: ReconConfig, metrics: dic
                           _csv("view,x,y,z,diameter_m,gt_seed_id,seed", obs, "%.7g"))
         if rec.keypoints is not None:
             atomic_write_text(tmp / "detections.csv", detections_csv_text(rec.keypoints))
-            if any(k is not None and k.left_desc is not None for k in rec.keypoints):
-                save_descriptors(tmp / "descriptors.npz", rec.keypoints)
         if rec.calib is not None:
             from seedmap.io.calibration import save_calib_yaml
 
@@ -430,7 +403,8 @@ def report_markdown(rec: Reconstruction, metrics: dict) -> str:
     lines = [f"# Panicle reconstruction ({rec.mode})", ""]
     if rec.oracle:
         lines += ["**Detections come from the ground-truth ORACLE (`gt` detector) -- simulation only.**", ""]
-    lines += [f"- views: {len(rec.poses)} ({len(rec.skipped)} skipped)",
+    lines += [f"- detector: {detector_label(rec.detector, rec.oracle)}",
+              f"- views: {len(rec.poses)} ({len(rec.skipped)} skipped)",
               f"- cloud points: {len(rec.cloud_xyz)}",
               f"- seed count: **{rec.count.count}** (from {len(rec.obs_xyz)} per-view detections)",
               calibrated_count_line(rec.calibrated),
@@ -590,9 +564,8 @@ def calibrated_count_line(c: CalibratedCount | None) -> str:
 
 def recount(results: str | Path, cfg: ReconConfig) -> SeedCount:
     """``seedmap count``: count the stored detections again with ``cfg.count``: method ``multiview``
-    from ``detections.csv``, ``calib.yaml`` and ``poses_tum.txt``; the 3D methods de-duplicate the
-    per-view seed observations of ``observations.csv`` (camera centres for ``rays`` from the poses).
-    The ``multiview`` assignment is per left detection of detections.csv (view order)."""
+    from ``detections.csv``, ``calib.yaml`` and ``poses_tum.txt`` (the assignment is per left detection of
+    detections.csv, view order); ``density`` de-duplicates the per-view seed observations of ``observations.csv``."""
     return recount_calibrated(results, cfg)[0]
 
 
@@ -602,41 +575,25 @@ def recount_calibrated(results: str | Path, cfg: ReconConfig) -> tuple[SeedCount
     return cnt, calibrate_count(cfg, count_features(kps, cnt))
 
 
+def depth_range(cfg: ReconConfig) -> tuple[float, float]:
+    """The depth range (m) the counter looks for seeds in: the clouds' range."""
+    return cfg.cloud.min_depth, cfg.cloud.max_depth
+
+
 def _recount(results: str | Path, cfg: ReconConfig) -> tuple[SeedCount, list[StereoKeypoints | None]]:
     xyz, view, diam = read_observations(results)
-    origin = None
-    if cfg.count.method == "multiview":
-        from seedmap.io.seedmap_dataset import read_calib_yaml
-        from seedmap.io.trajectory import read_tum
+    if cfg.count.method == "density":
+        return count_density(xyz, view, diam, cfg.count), []
+    from seedmap.io.seedmap_dataset import read_calib_yaml
+    from seedmap.io.trajectory import read_tum
 
-        p = Path(results) / "poses_tum.txt"
-        if not p.is_file():
-            raise InputError("poses_tum.txt not found (count method 'multiview' needs the camera poses)", p)
-        poses = read_tum(p).poses
-        c = Path(results) / "calib.yaml"
-        if not c.is_file():
-            raise InputError("calib.yaml not found (count method 'multiview' needs the calibration)", c)
-        calib = read_calib_yaml(c)
-        kps = read_detections(results, len(poses))
-        ccfg = cfg.count.for_detector(cfg.detector)
-        d = Path(results) / "descriptors.npz"
-        if ccfg.mv_appearance_weight > 0:
-            if d.is_file():
-                read_descriptors(d, kps)
-            else:
-                import warnings
-
-                warnings.warn(f"{d}: not found, so the stereo assignment runs without the appearance term "
-                              "(count.mv_appearance_weight); re-run `seedmap reconstruct` to write it", stacklevel=2)
-        return count_multiview(kps, poses, calib, ccfg), kps
-    if cfg.count.method == "rays":
-        from seedmap.io.trajectory import read_tum
-
-        p = Path(results) / "poses_tum.txt"
-        if not p.is_file():
-            raise InputError("poses_tum.txt not found (count method 'rays' needs the camera poses)", p)
-        poses = read_tum(p).poses
-        if len(view) and view.max() >= len(poses):
-            raise InputError(f"observations.csv refers to view {view.max()}, poses_tum.txt has {len(poses)}", p)
-        origin = poses[view][:, :3, 3]
-    return count_seeds(xyz, view, diam, cfg.count, origin=origin), []
+    p = Path(results) / "poses_tum.txt"
+    if not p.is_file():
+        raise InputError("poses_tum.txt not found (count method 'multiview' needs the camera poses)", p)
+    poses = read_tum(p).poses
+    c = Path(results) / "calib.yaml"
+    if not c.is_file():
+        raise InputError("calib.yaml not found (count method 'multiview' needs the calibration)", c)
+    calib = read_calib_yaml(c)
+    kps = read_detections(results, len(poses))
+    return count_multiview(kps, poses, calib, cfg.count.for_detector(cfg.detector), depth_range=depth_range(cfg)), kps

@@ -8,7 +8,7 @@ Modes (``RegisterConfig.mode``):
 * ``seeds`` -- only the view's 3D seed centres are registered to the seed centres already placed
   (point-to-point by default) -- the paper's "ICP on seed centres".
 
-The first view anchors the model at its FK pose. With ``init = chain`` each later view starts from
+The first view anchors the model at its FK pose. Each later view starts from
 the previous *refined* pose moved by the FK motion between the two views (the arm's relative
 motion is far more accurate than its absolute pose), which keeps the nearest-neighbour
 correspondences of densely packed seeds (~4 mm apart) right.
@@ -23,6 +23,19 @@ import numpy as np
 
 from seedmap.geometry import invert, rotation_angle_deg, transform_points
 from seedmap.recon.config import RegisterConfig
+
+#: ICP variants: full clouds point-to-plane, seed centres point-to-point
+FULL_METHOD, SEEDS_METHOD = "point_to_plane", "point_to_point"
+#: coarse-to-fine max correspondence distances (m) of both modes
+MAX_CORR: tuple[float, ...] = (0.004, 0.002, 0.001)
+#: voxel of the clouds used for full-cloud ICP (m)
+FULL_VOXEL = 0.002
+#: radius of the normal estimation of full clouds (m)
+NORMAL_RADIUS = 0.005
+#: ICP iterations per correspondence distance
+MAX_ITERATIONS = 50
+#: fewer seed correspondences keep the initial pose
+MIN_SEED_PAIRS = 8
 
 
 @dataclass
@@ -94,73 +107,9 @@ def icp(source: np.ndarray, target: np.ndarray, init: np.ndarray, max_corr: floa
     return T, fit, err
 
 
-def _register_one(g: ViewGeometry, target: np.ndarray, target_n: np.ndarray | None, init: np.ndarray,
-                  cfg: RegisterConfig) -> tuple[np.ndarray, float, float, bool]:
-    """ICP of one view (full cloud or seed centres per ``cfg.mode``) to a target; (T, fitness, rmse, ok)."""
-    if cfg.mode == "full":
-        T, fit, err = icp(g.cloud_xyz, target, init, cfg.full_max_corr, cfg.full_method, cfg.max_iterations,
-                          g.cloud_normals, target_n)
-        ok = fit > 0.05
-    else:
-        if len(g.seeds_xyz) < cfg.min_seed_pairs or len(target) < cfg.min_seed_pairs:
-            return init, float("nan"), float("nan"), False
-        T, fit, err = icp(g.seeds_xyz, target, init, cfg.seeds_max_corr, cfg.seeds_method, cfg.max_iterations)
-        ok = fit * len(g.seeds_xyz) >= cfg.min_seed_pairs
-    dT = T @ invert(init)
-    ok = ok and (np.linalg.norm(dT[:3, 3]) <= cfg.max_correction_m
-                 and rotation_angle_deg(dT[:3, :3]) <= cfg.max_correction_deg)
-    return T, fit, err, bool(ok)
-
-
-def register_global(views: list[ViewGeometry | None], T_fk: np.ndarray, cfg: RegisterConfig) -> RegistrationResult:
-    """Every view against the union of all OTHER views at their current poses, all views updated
-    together after each pass (Jacobi). FK errors are mostly independent per view, so the FK-placed
-    model is blurred but unbiased: no drift accumulates around the circle, unlike sequential ICP."""
-    V = len(views)
-    poses = np.array(T_fk, float, copy=True)
-    fitness = np.full(V, np.nan)
-    rmse = np.full(V, np.nan)
-    accepted = np.zeros(V, bool)
-    secs = np.zeros(V)
-    notes: list[str] = []
-    idx = [k for k in range(V) if views[k] is not None]
-    if cfg.mode == "fk" or len(idx) < 2:
-        return RegistrationResult(poses, fitness, rmse, accepted, secs, notes)
-    for _ in range(cfg.passes):
-        world_pts = {}
-        world_n = {}
-        for k in idx:
-            g = views[k]
-            if cfg.mode == "seeds":
-                world_pts[k] = transform_points(poses[k], g.seeds_xyz)
-            else:
-                world_pts[k] = transform_points(poses[k], g.cloud_xyz)
-                world_n[k] = g.cloud_normals @ poses[k][:3, :3].T
-        new = poses.copy()
-        for k in idx:
-            others = [j for j in idx if j != k]
-            target = np.concatenate([world_pts[j] for j in others])
-            tn = np.concatenate([world_n[j] for j in others]) if cfg.mode == "full" else None
-            t0 = time.perf_counter()
-            T, fit, err, ok = _register_one(views[k], target, tn, poses[k], cfg)
-            secs[k] += time.perf_counter() - t0
-            fitness[k], rmse[k] = fit, err
-            if ok:
-                new[k] = T
-                accepted[k] = True
-        poses = new
-    # keep the gauge: the mean correction of the scan is removed by re-anchoring view idx[0] at its FK pose
-    C = T_fk[idx[0]] @ invert(poses[idx[0]])
-    poses = C @ poses
-    notes += [f"view {k}: ICP correction rejected in the last pass" for k in idx if not accepted[k]]
-    return RegistrationResult(poses, fitness, rmse, accepted, secs, notes)
-
-
 def register_views(views: list[ViewGeometry | None], T_fk: np.ndarray, cfg: RegisterConfig,
                    progress=None) -> RegistrationResult:
     """Place every view (None = skipped view: keeps its FK pose, adds nothing to the model)."""
-    if cfg.strategy == "global":
-        return register_global(views, T_fk, cfg)
     V = len(views)
     poses = np.array(T_fk, float, copy=True)
     fitness = np.full(V, np.nan)
@@ -177,7 +126,7 @@ def register_views(views: list[ViewGeometry | None], T_fk: np.ndarray, cfg: Regi
         g = views[k]
         if g is None:
             continue
-        if cfg.init == "chain" and prev is not None:
+        if prev is not None:
             init = poses[prev] @ invert(T_fk[prev]) @ T_fk[k]
         else:
             init = T_fk[k].copy()
@@ -187,16 +136,15 @@ def register_views(views: list[ViewGeometry | None], T_fk: np.ndarray, cfg: Regi
             t0 = time.perf_counter()
             if cfg.mode == "full":
                 tn = np.concatenate(model_n)
-                T, fit, err = icp(g.cloud_xyz, target, init, cfg.full_max_corr, cfg.full_method,
-                                  cfg.max_iterations, g.cloud_normals, tn)
+                T, fit, err = icp(g.cloud_xyz, target, init, list(MAX_CORR), FULL_METHOD, MAX_ITERATIONS,
+                                  g.cloud_normals, tn)
                 ok = fit > 0.05
             else:
-                if len(g.seeds_xyz) < cfg.min_seed_pairs or len(target) < cfg.min_seed_pairs:
+                if len(g.seeds_xyz) < MIN_SEED_PAIRS or len(target) < MIN_SEED_PAIRS:
                     T, fit, err, ok = init, np.nan, np.nan, False
                 else:
-                    T, fit, err = icp(g.seeds_xyz, target, init, cfg.seeds_max_corr, cfg.seeds_method,
-                                      cfg.max_iterations)
-                    ok = fit * len(g.seeds_xyz) >= cfg.min_seed_pairs
+                    T, fit, err = icp(g.seeds_xyz, target, init, list(MAX_CORR), SEEDS_METHOD, MAX_ITERATIONS)
+                    ok = fit * len(g.seeds_xyz) >= MIN_SEED_PAIRS
             secs[k] = time.perf_counter() - t0
             dT = T @ invert(init)
             if ok and (np.linalg.norm(dT[:3, 3]) <= cfg.max_correction_m
