@@ -6,17 +6,18 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from seedmap.associate import available_matchers, make_matcher
-from seedmap.associate.base import GateConfig
-from seedmap.associate.semantic import (
+from seedmap.associate import (
     GATED,
     SemanticConfig,
     assign_sparse,
+    available_matchers,
+    make_matcher,
     match_stereo_keypoints,
     match_temporal_keypoints,
     neighbour_sums,
     pair_cost,
 )
+from seedmap.associate.base import GateConfig
 from seedmap.errors import SeedmapError
 from seedmap.slam.synthetic import default_calib, make_range, observe
 
