@@ -157,3 +157,16 @@ def test_make_matcher_names():
         make_matcher("nonsense", calib)
     with pytest.raises(SeedmapError):
         make_matcher("seeds", calib).features(None)  # no detector -> clear error, not a traceback
+
+
+def test_every_refine_value_has_a_method_and_the_matcher_picks_it_once():
+    from typing import get_args
+
+    from seedmap.associate import METHODS, SeedMatcher
+    from seedmap.errors import ConfigError
+
+    assert set(get_args(SemanticConfig.model_fields["refine"].annotation)) == set(METHODS)
+    for name, method in METHODS.items():
+        assert SeedMatcher(default_calib(), cfg=SemanticConfig(refine=name))._method is method
+    with pytest.raises((ConfigError, ValueError)):
+        SemanticConfig(refine="consensus")
