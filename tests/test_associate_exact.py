@@ -1,4 +1,4 @@
-"""Session 5 speed-ups of the association and the motion RANSAC must not change any result: each
+"""The fast paths of the association and the motion RANSAC must not change any result: each
 fast path is checked against the straightforward computation it replaced (same pairs, same
 medians bit for bit, same sums, same RANSAC inliers)."""
 
@@ -7,13 +7,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from seedmap.associate.semantic import _median_rows, box_pairs, local_field, loo_local_median, neighbour_sums
+from seedmap.associate.cost import neighbour_sums
+from seedmap.associate.field import _median_rows, box_pairs, local_field, loo_local_median
 from seedmap.records import Matches, StereoCalib
 from seedmap.slam.motion import _translation_inliers, ransac_translation, stereo_reproj_error
 
 
 def _kdtree_box_pairs(pa, pb, half):
-    """The sessions 1-4 implementation (two KD-trees, max-norm sparse distance matrix)."""
+    """The straightforward search: two KD-trees, max-norm sparse distance matrix."""
     h = np.maximum(np.asarray(half, np.float64), 1e-9)
     r = cKDTree(pa / h).sparse_distance_matrix(cKDTree(pb / h), 1.0, p=np.inf, output_type="ndarray")
     return set(zip(r["i"].tolist(), r["j"].tolist(), strict=True))

@@ -6,16 +6,10 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from seedmap.associate import make_matcher
+from seedmap.associate import SemanticConfig, make_matcher, match_stereo_keypoints, match_temporal_keypoints
+from seedmap.associate.assignment import assign_capped
 from seedmap.associate.base import GateConfig
-from seedmap.associate.semantic import (
-    SemanticConfig,
-    assign_capped,
-    box_pairs,
-    coarse_field,
-    match_stereo_keypoints,
-    match_temporal_keypoints,
-)
+from seedmap.associate.field import box_pairs, coarse_field
 from seedmap.eval.associate_metrics import score_matches, stereo_gate, temporal_gate
 from seedmap.slam.config import SlamConfig
 from seedmap.slam.synthetic import make_range, observe

@@ -6,17 +6,18 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from seedmap.associate import available_matchers, make_matcher
-from seedmap.associate.base import GateConfig
-from seedmap.associate.semantic import (
+from seedmap.associate import (
     GATED,
     SemanticConfig,
     assign_sparse,
+    available_matchers,
+    make_matcher,
     match_stereo_keypoints,
     match_temporal_keypoints,
     neighbour_sums,
     pair_cost,
 )
+from seedmap.associate.base import GateConfig
 from seedmap.errors import SeedmapError
 from seedmap.slam.synthetic import default_calib, make_range, observe
 
@@ -156,3 +157,16 @@ def test_make_matcher_names():
         make_matcher("nonsense", calib)
     with pytest.raises(SeedmapError):
         make_matcher("seeds", calib).features(None)  # no detector -> clear error, not a traceback
+
+
+def test_every_refine_value_has_a_method_and_the_matcher_picks_it_once():
+    from typing import get_args
+
+    from seedmap.associate import METHODS, SeedMatcher
+    from seedmap.errors import ConfigError
+
+    assert set(get_args(SemanticConfig.model_fields["refine"].annotation)) == set(METHODS)
+    for name, method in METHODS.items():
+        assert SeedMatcher(default_calib(), cfg=SemanticConfig(refine=name))._method is method
+    with pytest.raises((ConfigError, ValueError)):
+        SemanticConfig(refine="consensus")

@@ -16,8 +16,6 @@ def test_run_slam_on_a_simulated_range(tiny_range, tmp_path):
     from seedmap.slam.pipeline import run_slam
 
     cfg = SlamConfig()
-    cfg.association.refine = "consensus"
-    cfg.association.temporal_prediction = True
     res = run_slam(tiny_range, tmp_path / "res", matcher="seeds", detector="gt", config=cfg, progress=False)
     m = res.metrics
     assert m.lost_frame is None, m.lost_reason

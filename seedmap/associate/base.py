@@ -58,13 +58,21 @@ class GateConfig(ConfigModel):
     -1 when the camera moves towards its +x (points slide left in the image).
     """
 
+    #: stereo: largest row offset |v_l - v_r|
     stereo_max_dy_px: float = 20.0
+    #: stereo: smallest disparity u_l - u_r
     stereo_min_disparity_px: float = 50.0
+    #: stereo: keypoints this close to the left / right image edge are not matched
     stereo_border_px: float = 200.0
+    #: temporal: largest row offset of a candidate pair
     temporal_max_dy_px: float = 250.0
+    #: temporal: largest row offset of a kept pair
     temporal_post_max_dy_px: float = 60.0
+    #: temporal: smallest u shift along the travel direction
     temporal_min_shift_px: float = 50.0
+    #: temporal: keypoints this close to the left / right image edge are not matched
     temporal_border_px: float = 300.0
+    #: sign of the image-u shift of static points between frames (-1: the camera moves towards its +x)
     travel_sign: int = -1
 
     def scaled(self, image_width: int) -> GateConfig:

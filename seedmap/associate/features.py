@@ -64,31 +64,32 @@ from seedmap.records import Matches, StereoCalib, StereoFrame
 
 #: Descriptor kinds the baseline matcher knows.
 KINDS = ("sift", "surf", "orb", "akaze")
+#: CLAHE clip limit and tile grid (OpenCV's usual values), with ``clahe=True``
+CLAHE_CLIP = 2.0
+CLAHE_TILES = 8
 
 
 class FeatureMatcherConfig(ConfigModel):
     """Parameters of the descriptor baselines (facts.md defaults; pixel gates at 4096 px width)."""
 
+    #: Lowe's ratio: keep the best match when ``d1 < ratio * d2``
     ratio: float = 0.8
-    """Lowe's ratio: keep the best match when ``d1 < ratio * d2``."""
+    #: SIFT: keep the best N features (0 = all)
     sift_nfeatures: int = 0
-    """SIFT: keep the best N features (0 = all)."""
+    #: SIFT: DoG contrast threshold (OpenCV default 0.04; lower finds more, weaker features)
     sift_contrast_threshold: float = 0.04
-    """SIFT: DoG contrast threshold (OpenCV default 0.04; lower finds more, weaker features)."""
+    #: SURF: Hessian threshold (facts.md 400)
     surf_hessian: float = 400.0
-    """SURF: Hessian threshold (facts.md 400)."""
+    #: ORB: maximum number of features (facts.md 1000)
     orb_nfeatures: int = 1000
-    """ORB: maximum number of features (facts.md 1000)."""
+    #: ORB: FAST threshold (OpenCV default 20)
     orb_fast_threshold: int = 20
-    """ORB: FAST threshold (OpenCV default 20)."""
+    #: AKAZE: detector response threshold (OpenCV default 0.001)
     akaze_threshold: float = 0.001
-    """AKAZE: detector response threshold (OpenCV default 0.001)."""
+    #: equalise the grey image with CLAHE before detection (helps dark flash images)
     clahe: bool = False
-    """Equalise the grey image with CLAHE before detection (helps dark flash images)."""
-    clahe_clip: float = 2.0
-    clahe_tiles: int = 8
+    #: apply the geometric gates as a kNN mask before the ratio test (else after, as facts.md)
     gate_first: bool = False
-    """Apply the geometric gates as a kNN mask before the ratio test (else after, as facts.md)."""
     gates: GateConfig = GateConfig()
 
     def check(self) -> None:
@@ -203,7 +204,7 @@ class FeatureMatcher:
         self._det, self._norm = _make_detector(kind, cfg)
         self._bf = cv2.BFMatcher(self._norm, crossCheck=False)
         self._clahe = (
-            cv2.createCLAHE(clipLimit=cfg.clahe_clip, tileGridSize=(cfg.clahe_tiles, cfg.clahe_tiles))
+            cv2.createCLAHE(clipLimit=CLAHE_CLIP, tileGridSize=(CLAHE_TILES, CLAHE_TILES))
             if cfg.clahe
             else None
         )

@@ -99,8 +99,7 @@ class AssociationReport:
     temporal: dict
     per_frame: list[dict] = field(default_factory=list)
     #: mean CPU ms per frame of the association (detection excluded): ``stereo`` = the matcher's
-    #: stereo step (with ``stereo_carry`` it contains the temporal matching of both images, listed
-    #: separately as ``temporal_left`` / ``temporal_right``), ``temporal`` = the ``match_temporal`` call
+    #: stereo step, ``temporal`` = the ``match_temporal`` call
     cpu_ms_per_frame: dict = field(default_factory=dict)
 
 
@@ -126,9 +125,6 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
         for i in range(n):
             f = m.features(ds[i])
             cpu.setdefault("stereo", []).append(f.timings_ms.get("stereo_match_cpu", np.nan))
-            for k in ("temporal_left_cpu", "temporal_right_cpu"):
-                if k in f.timings_ms:
-                    cpu.setdefault(k[:-4], []).append(f.timings_ms[k])
             s = score_matches(f.stereo, f.seed_ids_left, f.seed_ids_right, f.kp_left, f.kp_right, sg)
             st_tot.add(s)
             row = {"frame": i, "stereo": s.summary()}

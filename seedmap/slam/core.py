@@ -18,7 +18,7 @@ is unconstrained along nothing but still poorly conditioned, and this rule keeps
 optionally re-solves the whole graph in batch (Levenberg–Marquardt or Dogleg).
 
 Lost: fewer than ``lost.min_inliers`` verified 3D matches to the previous frame, or the optimiser
-throws / moves the new pose more than ``backend.max_correction_m`` away from the motion estimate.
+throws / moves the new pose more than ``MAX_CORRECTION_M`` away from the motion estimate.
 After "lost" the object refuses further frames (the paper's maximum-distance-mapped protocol).
 """
 
@@ -36,6 +36,19 @@ from seedmap.associate.base import FULL_RES_WIDTH, FrameFeatures, Matcher
 from seedmap.records import Matches, StereoCalib, Trajectory
 from seedmap.slam.config import SlamConfig
 from seedmap.slam.motion import ransac_motion, ransac_translation
+
+#: Huber threshold of the stereo factors (in sigmas; the usual 95 %-efficiency constant)
+HUBER_K = 1.345
+#: prior on the first pose: rotation (rad) and translation (m) sigmas, i.e. practically fixed
+PRIOR_SIGMA_ROT_RAD = 1e-4
+PRIOR_SIGMA_TRANS_M = 1e-4
+#: iSAM2 relinearisation threshold and number of updates between relinearisation checks
+ISAM_RELINEARIZE_THRESHOLD = 0.01
+ISAM_RELINEARIZE_SKIP = 1
+#: a per-frame correction of the motion estimate larger than this (m) means the optimiser failed
+MAX_CORRECTION_M = 0.10
+#: least-squares refits of the RANSAC motion on its inliers
+MOTION_REFINE_ITERS = 3
 
 
 @dataclass
@@ -103,17 +116,17 @@ class SemanticSlam:
         b = self.cfg.backend
         self.K = gtsam.Cal3_S2Stereo(calib.fx, calib.fy, 0.0, calib.cx, calib.cy, calib.baseline)
         self.stereo_noise = gtsam.noiseModel.Robust.Create(
-            gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k), gtsam.noiseModel.Isotropic.Sigma(3, b.stereo_sigma_px)
+            gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K), gtsam.noiseModel.Isotropic.Sigma(3, b.stereo_sigma_px)
         )
         self.prior_noise = gtsam.noiseModel.Diagonal.Sigmas(
-            np.r_[np.full(3, b.prior_sigma_rot_rad), np.full(3, b.prior_sigma_trans_m)]
+            np.r_[np.full(3, PRIOR_SIGMA_ROT_RAD), np.full(3, PRIOR_SIGMA_TRANS_M)]
         )
         self.between_noise = gtsam.noiseModel.Diagonal.Sigmas(
             np.r_[np.full(3, b.between_sigma_rot_rad), np.full(3, b.between_sigma_trans_m)]
         )
         params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(b.isam_relinearize_threshold)
-        params.relinearizeSkip = b.isam_relinearize_skip
+        params.setRelinearizeThreshold(ISAM_RELINEARIZE_THRESHOLD)
+        params.relinearizeSkip = ISAM_RELINEARIZE_SKIP
         self.isam = gtsam.ISAM2(params) if b.online == "isam2" else None
         self.graph = gtsam.NonlinearFactorGraph()  # everything added so far (for the final batch)
         self.initial = gtsam.Values()
@@ -238,7 +251,7 @@ class SemanticSlam:
                 fe = self.cfg.frontend
                 fit = ransac_translation if fe.motion_model == "translation" else ransac_motion
                 est = fit(self.calib, self._prev_pts[pa], pts[pb], obs[pb], self.rng,
-                          fe.ransac_iters, self._reproj_px, fe.refine_iters)
+                          fe.ransac_iters, self._reproj_px, MOTION_REFINE_ITERS)
             tm["motion"] = (time.perf_counter() - t0) * 1e3
             n_inl = 0 if est is None else int(est.inliers.sum())
             res.n_inliers = n_inl
@@ -289,7 +302,7 @@ class SemanticSlam:
             return self._declare_lost(f, f"optimiser failed ({type(e).__name__}: {str(e).splitlines()[0][:80]})", res)
         tm["backend"] = (time.perf_counter() - t0) * 1e3
         T_pred = values.atPose3(X(k)).matrix()
-        if not np.all(np.isfinite(T_opt)) or np.linalg.norm(T_opt[:3, 3] - T_pred[:3, 3]) > self.cfg.backend.max_correction_m:
+        if not np.all(np.isfinite(T_opt)) or np.linalg.norm(T_opt[:3, 3] - T_pred[:3, 3]) > MAX_CORRECTION_M:
             return self._declare_lost(f, "optimiser diverged (pose moved away from the motion estimate)", res)
         self.graph.push_back(graph)
         self.initial.insert(values)
