@@ -170,15 +170,16 @@ def page_detect(cmds: dict[str, str]) -> tuple[str, str] | None:
     d = load("bench_detect.json")
     if d is None:
         return None
-    rows = [[r["detector"], f"{r['width']}×{r['height']}", num(r.get("ms")), num(r.get("cpu_ms_1thread")),
+    rows = [[r["detector"], f"{r['width']}×{r['height']}", num(r.get("ms_per_stereo_frame", r.get("ms"))),
+             num(r.get("cpu_ms_1thread", r.get("cpu_ms_per_stereo_frame"))),
              num(r.get("fps_1core_from_cpu_time")), num(r.get("ratio_vs_blur_cpu")), num(r.get("detections"))]
             for r in d["rows"]]
     body = [source("bench_detect.json", cmds),
             f"{d.get('cpus', '?')} CPUs, load average {num(d.get('load_avg_1m'), 2)} at the start. "
             f"{d.get('note', '')}\n",
-            "Speed per image (a stereo frame where the row says so); `fast-cnn` is the `fast` detector "
+            "Speed per image (per stereo frame where the row says so); `fast-cnn` is the `fast` detector "
             "(CNN + refiner) unless a `[override]` is named.\n",
-            table(["detector", "image", "wall ms", "CPU ms (1 thread)", "images/s per core", "CPU / blur",
+            table(["detector", "image", "wall ms", "CPU ms", "images/s per core", "CPU / blur",
                    "detections"], rows)]
     il = d.get("interleaved")
     if il:
