@@ -307,8 +307,17 @@ def page_io(cmds: dict[str, str]) -> tuple[str, str] | None:
     d = load("bench_io.json")
     if d is None:
         return None
-    rows = [[f"`{k}`", num(v)] for k, v in d.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
-    return "Loader speed", "\n".join([source("bench_io.json", cmds), table(["measure", "value"], rows)])
+    rows = []
+    for part, v in d.items():
+        items = v.items() if isinstance(v, dict) else [("", v)]
+        for k, x in items:
+            shown = "×".join(map(str, x)) if isinstance(x, list) else num(x)
+            rows.append([f"`{part}`", f"`{k}`" if k else "", shown])
+    return "Loader speed", "\n".join([
+        source("bench_io.json", cmds),
+        "`rectify_overhead`: time per frame of an unrectified image folder (decode + remap) over decoding the same "
+        "two PNGs; `bag_random_over_stream`: random access into a ROS 1 bag over one streaming pass.\n",
+        table(["loader", "measure", "value"], rows)])
 
 
 def page_batch(cmds: dict[str, str]) -> tuple[str, str] | None:
