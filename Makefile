@@ -19,7 +19,7 @@ setup-test: $(TESTS)
 
 $(BASE): pyproject.toml
 	@bash scripts/install_system_deps.sh
-	@avail=$$(df -Pk . | awk 'NR==2{print $$4}'); if [ "$$avail" -lt 4000000 ]; then echo "warning: $$((avail/1024)) MiB free here; the base environment (.venv) needs about 3 GB" >&2; fi
+	@avail=$$(df -Pk . | awk 'NR==2{print $$4}'); if [ "$$avail" -lt 4000000 ]; then echo "warning: $$((avail/1024)) MiB free here; the base environment (.venv) needs about 2.6 GB" >&2; fi
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
 	$(PIP) install -q -e .
