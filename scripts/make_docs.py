@@ -227,7 +227,8 @@ _RECON_METRICS = [("pose_trans_mm_mean", "pose error (mm)"), ("pose_rot_deg_mean
 def _recon_eval(d: dict, title: str) -> str:
     pan = d.get("panicles", [])
     out = [f"**{title}**: detector `{d.get('detector')}`{' (ORACLE: reads the ground truth)' if d.get('detector') == 'gt' else ''}, "
-           f"{len(pan)} panicles ({pan[0]}–{pan[-1]}; the first is the tuning panicle, left out of the means).\n"
+           f"means ± standard deviations over {len(pan)} panicles ({pan[0]}–{pan[-1]}; the command's first panicle "
+           "tunes the naive 2D baseline and is not among them).\n"
            if pan else f"**{title}**\n"]
     modes = d.get("modes", {})
     rows = [[f"`{m}`"] + [mean_std(v.get(k)) for k, _ in _RECON_METRICS] for m, v in modes.items()]
