@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """Write the results pages ``docs/results/*.md`` from the benchmark JSON files in ``benchmarks/results/``.
 
-Every number on those pages comes from a JSON file a benchmark wrote, and every page names the command that
+It also writes the results table of ``README.md`` (between its two marker comments). Every number on those
+pages comes from a JSON file a benchmark wrote, and every page names the command that
 wrote it (the table in ``benchmarks/README.md``), so the pages cannot drift from the runs. A page whose JSON is
 absent (e.g. ``paper.json`` before the paper benchmark was run) is skipped and left out of the index.
 
-    python scripts/make_docs.py [--out docs/results]
+    python scripts/make_docs.py [--out docs/results] [--no-readme]
 
 Standard library only; ``tests/test_docs_generated.py`` checks that the committed pages are what this writes.
 """
@@ -337,7 +338,27 @@ def page_batch(cmds: dict[str, str]) -> tuple[str, str] | None:
     return "Field batch speed-up", "\n".join(body)
 
 
+def page_demo(cmds: dict[str, str]) -> tuple[str, str] | None:
+    d = load("demo.json")
+    if d is None:
+        return None
+    ms = d.get("ms_per_frame", {})
+    rows = [["frames tracked / in the range", f"{d['frames_tracked']} / {d['frames']}"],
+            ["maximum distance mapped", f"{num(d['mdm_m'])} m ({pct(d['mdm_fraction'])} of {num(d['range_length_m'])} m)"],
+            ["GT-validated maximum distance mapped", f"{num(d['gt_mdm_m'])} m ({pct(d['gt_mdm_fraction'])})"],
+            ["ATE RMSE (aligned)", f"{num(1000 * d['ate_rmse_m'])} mm ({pct(d.get('ate_fraction_of_distance'), 2)} of "
+                                   "the distance)"],
+            ["RPE translation RMSE", f"{num(1000 * d['rpe_trans_rmse_m'])} mm"],
+            ["landmarks", num(d.get("landmarks"))],
+            ["matcher / detector / back-end", f"`{d.get('matcher')}` / `{d.get('detector')}` / `{d.get('backend')}`"]]
+    trows = [[f"`{k}`", num(v)] for k, v in ms.items()]
+    return "The demo", "\n".join([
+        source("demo.json", cmds), table(["metric", "value"], rows), "\n**Time per frame (ms, mean)**\n",
+        table(["stage", "ms"], trows)])
+
+
 PAGES: dict[str, Callable[[dict[str, str]], tuple[str, str] | None]] = {
+    "demo.md": page_demo,
     "paper.md": page_paper,
     "detect.md": page_detect,
     "slam.md": page_slam,
@@ -346,6 +367,93 @@ PAGES: dict[str, Callable[[dict[str, str]], tuple[str, str] | None]] = {
     "io.md": page_io,
     "batch.md": page_batch,
 }
+
+
+def _row_named(rows: list[dict], start: str) -> dict | None:
+    return next((r for r in rows if r.get("detector", "").startswith(start)), None)
+
+
+def glance() -> str:
+    """The README's one results table, each row from a benchmark JSON (rows whose JSON is absent are left out)."""
+    rows = []
+    if d := load("demo.json"):
+        rows.append([f"SLAM, `make demo` ({num(d['range_length_m'])} m range)",
+                     f"{d['frames_tracked']}/{d['frames']} frames; {pct(d['mdm_fraction'], 0)} of the range mapped, "
+                     f"{pct(d['gt_mdm_fraction'], 0)} GT-validated; ATE {num(1000 * d['ate_rmse_m'], 2)} mm "
+                     f"({pct(d.get('ate_fraction_of_distance'), 2)} of the distance)", "[demo](docs/results/demo.md)"])
+    if d := load("paper.json"):
+        recs = [r for r in d["records"] if r["scenario"] == "paper"]
+        parts = []
+        for m in dict.fromkeys(r["method"] for r in recs):
+            v = [r["gt_mdm_fraction"] for r in recs if r["method"] == m and r.get("status") == "ok"
+                 and r.get("gt_mdm_fraction") is not None]
+            if v:
+                parts.append(f"{m} {pct(sum(v) / len(v), 0)}")
+        ranges = len({r["range_name"] for r in recs})
+        rows.append([f"SLAM, the paper's {ranges} ranges", "mean GT-validated fraction mapped: " + ", ".join(parts),
+                     "[paper](docs/results/paper.md)"])
+    if d := load("detect_accuracy.json"):
+        f1s, kps, tot = [], [], {"tp": 0, "n_det": 0, "n_gt": 0}
+        for v in d["datasets"].values():
+            for r in v["by_threshold"].values():
+                f1s.append(r["f1"])
+                kps.append(r["kp_median_px"])
+                for k in tot:
+                    tot[k] += r[k]
+        p, r = tot["tp"] / tot["n_det"], tot["tp"] / tot["n_gt"]
+        rows.append([f"seed detection, `fast`, {len(d['datasets'])} held-out ranges",
+                     f"F1 {2 * p * r / (p + r):.3f} pooled ({min(f1s):.3f}–{max(f1s):.3f} per range); keypoint "
+                     f"error median {min(kps):.2f}–{max(kps):.2f} px", "[detect](docs/results/detect.md)"])
+    if d := load("bench_detect.json"):
+        one = _row_named(d["rows"], "fast-cnn (1 onnxruntime thread, gated tiles)")
+        pair = _row_named(d["rows"], "fast-cnn stereo frame (left and right concurrently")
+        if one and pair:
+            rows.append(["detection speed, `fast`",
+                         f"{num(one['cpu_ms_1thread'])} ms CPU per {one['width']}×{one['height']} image on one core; "
+                         f"a stereo pair in {num(pair['ms_per_stereo_frame'])} ms on two cores",
+                         "[detect](docs/results/detect.md)"])
+    if d := load("bench_slam.json"):
+        r = next((r for r in d["association"] if r["refine"] == "field" and r["keypoints_left"] == 1000), None)
+        if r:
+            rows.append(["association speed (default)",
+                         f"{num(1000 * (r['stereo_cpu_s'] + r['temporal_cpu_s']), 2)} ms CPU per frame (stereo + "
+                         "temporal) at 1,000 seeds per image", "[slam](docs/results/slam.md)"])
+    e, o = load("bench_recon_eval.json"), load("bench_recon_eval_oracle.json")
+    if e or o:
+        txt = []
+
+        def reg(modes: dict, m: str) -> str:
+            return (f"{num(modes[m]['pose_trans_mm_mean']['mean'], 3)} mm / "
+                    f"{num(modes[m]['pose_rot_deg_mean']['mean'], 2)}°")
+
+        if e and "seeds" in e["modes"]:
+            txt.append(f"seed-centre ICP with `fast`: {reg(e['modes'], 'seeds')}")
+        if o and {"seeds", "full"} <= set(o["modes"]):
+            txt.append(f"with the ORACLE detector {reg(o['modes'], 'seeds')} vs full-cloud ICP {reg(o['modes'], 'full')}")
+        rows.append(["arm-scan registration, pose error", "; ".join(txt), "[recon](docs/results/recon.md)"])
+    if (d := load("count_calibration_heldout.json")) and "calibrated" in d:
+        rows.append([f"seed count, `fast`, {d['raw']['n']} panicles rendered after the fit",
+                     f"calibrated MAPE {num(d['calibrated']['mape_pct'])} % (raw count {num(d['raw']['mape_pct'])} %)",
+                     "[recon](docs/results/recon.md)"])
+    if d := load("bench_sim.json"):
+        cpu = [r["cpu_s_per_pair_median"] for r in d["ranges"]]
+        rows.append(["simulator", f"{min(cpu):.2f}–{max(cpu):.2f} s CPU per stereo pair on "
+                     f"{' and '.join(num(r['range_length_m']) for r in d['ranges'])} m ranges",
+                     "[sim](docs/results/sim.md)"])
+    return table(["what", "result", "page"], rows)
+
+
+README_BEGIN = "<!-- results table: generated by scripts/make_docs.py (make docs) -->"
+README_END = "<!-- end of the generated results table -->"
+
+
+def readme_with_glance(text: str) -> str:
+    """``text`` (the README) with the block between the two markers replaced by :func:`glance`."""
+    head, sep, rest = text.partition(README_BEGIN)
+    _, sep2, tail = rest.partition(README_END)
+    if not sep or not sep2:
+        raise SystemExit(f"README.md lacks the markers {README_BEGIN!r} ... {README_END!r}")
+    return f"{head}{README_BEGIN}\n{glance()}{README_END}{tail}"
 
 
 def write(out: Path) -> list[Path]:
@@ -372,9 +480,14 @@ def write(out: Path) -> list[Path]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "results")
+    ap.add_argument("--no-readme", action="store_true", help="leave README.md's results table alone")
     args = ap.parse_args()
     for p in write(args.out):
         print(p)
+    if not args.no_readme:
+        readme = ROOT / "README.md"
+        readme.write_text(readme_with_glance(readme.read_text()))
+        print(readme)
 
 
 if __name__ == "__main__":
