@@ -33,7 +33,9 @@ import numpy as np
 def _bench_range(length: float, seed: int, scale: float, n: int) -> dict:
     from seedmap.sim import SimConfig, build_range_world, render_stereo
     from seedmap.sim.range import _rngs, n_frames, range_trajectory
-    from seedmap.sim.render import _camera_dirs, _FrameScene, _rays_tensor, _xf, right_pose
+    from seedmap.sim.render import right_pose
+    from seedmap.sim.render.rays import _camera_dirs, _rays_tensor, _xf
+    from seedmap.sim.render.scene import _FrameScene
 
     cfg = SimConfig(seed=seed, world={"length": length}, camera={"scale": scale})
     calib = cfg.camera.calib()

@@ -11,14 +11,10 @@ import pytest
 
 from seedmap.sim import SimConfig, build_range_world, render_stereo, right_pose
 from seedmap.sim.range import _rngs, range_trajectory
-from seedmap.sim.render import (
-    CLS_SOIL,
-    _camera_dirs,
-    _FrameScene,
-    _leaf_spheres,
-    _rays_tensor,
-    _xf,
-)
+from seedmap.sim.render.culling import _leaf_spheres
+from seedmap.sim.render.rays import _camera_dirs, _rays_tensor, _xf
+from seedmap.sim.render.scene import _FrameScene
+from seedmap.sim.world import CLS_SOIL
 
 
 def _world(length: float, scale: float = 0.15, seed: int = 3):

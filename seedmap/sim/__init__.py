@@ -18,8 +18,9 @@ Heavy imports (Open3D) happen only when rendering.
 """
 
 from seedmap.sim.config import PRESETS, SimConfig, preset_dict
-from seedmap.sim.range import range_length, range_trajectory, simulate_range
+from seedmap.sim.range import range_trajectory, simulate_range
 from seedmap.sim.render import RenderedStereo, render_stereo, right_pose
+from seedmap.sim.stats import range_length
 from seedmap.sim.world import World, build_panicle_world, build_range_world
 
 __all__ = [
