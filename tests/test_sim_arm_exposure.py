@@ -1,6 +1,6 @@
-"""Arm-scan exposure (session 7): the default ``exposure="auto"`` exposes seeds facing the camera at the
-scan's stand-off as the field camera exposes them at 0.7 m; ``exposure=1.0`` keeps the old flash-saturated
-renders."""
+"""Arm-scan exposure: the default ``exposure="auto"`` exposes seeds facing the camera at the
+scan's stand-off as the field camera exposes them at 0.7 m; ``exposure=1.0`` keeps the field gain (flash-saturated
+close-ups)."""
 
 from __future__ import annotations
 

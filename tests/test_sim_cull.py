@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from seedmap.sim import SimConfig, build_range_world, render_stereo, right_pose
+from seedmap.sim.config import FLASH_OFFSET
 from seedmap.sim.range import _rngs, range_trajectory
+from seedmap.sim.render import stereo
 from seedmap.sim.render.culling import _leaf_spheres
 from seedmap.sim.render.rays import _camera_dirs, _rays_tensor, _xf
 from seedmap.sim.render.scene import _FrameScene
@@ -30,7 +32,7 @@ def scene():
     calib = cfg.camera.calib()
     i = len(traj) // 2
     T = traj.poses[i]
-    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+    light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
     fs = _FrameScene(world, float(traj.timestamps[i]), [T, right_pose(T, calib.baseline)], calib, light)
     return cfg, world, calib, T, light, fs
 
@@ -123,7 +125,7 @@ def test_frame_geometry_does_not_grow_with_the_range():
         calib = cfg.camera.calib()
         T = traj.poses[len(traj) // 2].copy()
         T[:3, 3] = (0.8, -cfg.camera.standoff, cfg.camera.mount_height)
-        light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+        light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
         fs = _FrameScene(world, 0.0, [T, right_pose(T, calib.baseline)], calib, light)
         n_env = len(world.stalk_triangles) + len(world.leaf_vertices) * len(world.leaf_triangles)
         counts.append((len(fs.F), len(fs.active), n_env))
@@ -132,10 +134,10 @@ def test_frame_geometry_does_not_grow_with_the_range():
     assert f3 < 1.3 * f1 and a3 <= a1 + 2, counts
 
 
-def test_render_is_deterministic_with_threads(scene):
+def test_render_is_deterministic_with_threads(scene, monkeypatch):
     cfg, world, calib, T, light, fs = scene
-    cfg1 = cfg.model_copy(update={"imaging": cfg.imaging.model_copy(update={"threads": 1})})
     a = render_stereo(world, T, calib, cfg, np.random.default_rng(7), 0.4)
-    b = render_stereo(world, T, calib, cfg1, np.random.default_rng(7), 0.4)
+    monkeypatch.setattr(stereo, "CAMERA_THREADS", 1)
+    b = render_stereo(world, T, calib, cfg, np.random.default_rng(7), 0.4)
     assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
     assert np.array_equal(a.left_labels, b.left_labels) and np.array_equal(a.right_labels, b.right_labels)

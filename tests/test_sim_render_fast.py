@@ -17,6 +17,7 @@ from seedmap.sim.render.scene import _FrameScene
 from seedmap.sim.render.shading import _shade, _shade_parts
 from seedmap.sim.render.shadows import _filter_visibility
 from seedmap.sim import SimConfig, build_range_world, render_stereo, right_pose
+from seedmap.sim.config import FLASH_OFFSET, LIGHT_CUTOFF
 from seedmap.sim.meshes import ellipsoids
 from seedmap.sim.range import _rngs, range_trajectory
 
@@ -31,7 +32,7 @@ def scene():
     calib = cfg.camera.calib()
     i = len(traj) // 2
     T = traj.poses[i]
-    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+    light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
     fs = _FrameScene(world, float(traj.timestamps[i]), [T, right_pose(T, calib.baseline)], calib, light)
     return cfg, world, calib, T, float(traj.timestamps[i]), fs
 
@@ -132,7 +133,7 @@ def test_antialiasing_matches_tracing_every_subsample(scene):
     cfg, world, calib, T, t, fs = scene
     H, W = calib.height, calib.width
     R, o = T[:3, :3], T[:3, 3].astype(np.float32)[None]
-    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+    light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
     light_axes = np.stack([T[:3, 0], T[:3, 1]]).astype(np.float32)
     dc, pix = _camera_dirs(world, calib)
     d = _xf(dc, R)
@@ -148,7 +149,7 @@ def test_antialiasing_matches_tracing_every_subsample(scene):
     _antialias(fs, o, R, calib, cfg, h, key, fast, covers, scovers, light, light_axes,
                       np.random.default_rng(2), T, vis)
     # reference: every sub-sample of every edge pixel traced; another object than the pixel's is shaded
-    idx = _edge_pixels(key, h.t, H, W, cfg.imaging.light_cutoff + 0.3)
+    idx = _edge_pixels(key, h.t, H, W, LIGHT_CUTOFF + 0.3)
     offs = [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)]
     ref_sum = np.zeros((len(idx), 3), np.float32)
     rng = np.random.default_rng(3)

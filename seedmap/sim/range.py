@@ -13,7 +13,7 @@ from seedmap.geometry import pose_to_tum
 from seedmap.io.atomic import atomic_output_dir, check_output_parent
 from seedmap.io.seedmap_dataset import DatasetWriter
 from seedmap.records import Trajectory
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import ALONG_WOBBLE, ANGLE_WOBBLE_DEG, HEIGHT_WOBBLE, LATERAL_WOBBLE, SimConfig
 from seedmap.sim.render import render_stereo
 from seedmap.sim.stats import dataset_stats, write_preview, write_stats
 from seedmap.sim.world import build_range_world
@@ -48,10 +48,10 @@ def range_trajectory(cfg: SimConfig, rng: np.random.Generator) -> Trajectory:
     ts = np.arange(n) / mc.fps
     s = np.linspace(0.0, 1.0, n)
     x_nom = cfg.world.length * s
-    x = x_nom + _smooth_noise(rng, x_nom, mc.along_wobble) * np.sin(np.pi * s)  # ends stay at 0 / length
-    y = -cfg.camera.standoff + _smooth_noise(rng, x_nom, mc.lateral_wobble)
-    z = cfg.camera.mount_height + _smooth_noise(rng, x_nom, mc.height_wobble)
-    a = np.radians(mc.angle_wobble_deg)
+    x = x_nom + _smooth_noise(rng, x_nom, ALONG_WOBBLE) * np.sin(np.pi * s)  # ends stay at 0 / length
+    y = -cfg.camera.standoff + _smooth_noise(rng, x_nom, LATERAL_WOBBLE)
+    z = cfg.camera.mount_height + _smooth_noise(rng, x_nom, HEIGHT_WOBBLE)
+    a = np.radians(ANGLE_WOBBLE_DEG)
     ang = np.stack([_smooth_noise(rng, x_nom, a) for _ in range(3)], 1)  # about camera x, y, z
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, :3, :3] = R_WORLD_CAM0[None] @ Rotation.from_rotvec(ang).as_matrix()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from seedmap.records import StereoCalib
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import LIGHT_CUTOFF, SimConfig
 from seedmap.sim.render.culling import _CamCovers
 from seedmap.sim.render.rays import ENV_CODE, _dot3, _Hits, _object_key, _put_rows, _rows, _take, _unit_dirs, _xf
 from seedmap.sim.render.scene import _FrameScene
@@ -108,7 +108,7 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
     n_ss = cfg.imaging.supersample
     tt = np.minimum(h.t, np.float32(1e3))
     key2, tt2 = key.reshape(H, W), tt.reshape(H, W)
-    lit2 = tt2 < cfg.imaging.light_cutoff + 0.3
+    lit2 = tt2 < LIGHT_CUTOFF + 0.3
     edge = np.zeros((H, W), bool)
     for ea, eb in (((slice(None), slice(1, None)), (slice(None), slice(0, -1))),
                    ((slice(1, None), slice(None)), (slice(0, -1), slice(None)))):

@@ -8,7 +8,7 @@ import numpy as np
 
 from seedmap.geometry import invert
 from seedmap.records import StereoCalib
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import FLASH_RADIUS, SimConfig
 from seedmap.sim.meshes import ellipsoids, vertex_normals
 from seedmap.sim.render.culling import (
     _CamCovers,
@@ -119,7 +119,7 @@ class _FrameScene:
             add(v, np.array([[0, 1, 2], [0, 2, 3]]), np.tile([0, 0, 1.0], (4, 1)),
                 np.tile(world.soil_color, (4, 1)), np.zeros((4, 2)), CLS_SOIL)
         self.n_soil = len(F[0]) if world.has_soil else 0  # the soil's triangles come first
-        margin = max(float(np.linalg.norm(light - T[:3, 3])) for T in cams) + world.cfg.imaging.flash_radius + 0.01
+        margin = max(float(np.linalg.norm(light - T[:3, 3])) for T in cams) + FLASH_RADIUS + 0.01
 
         def in_view(c: np.ndarray, r: np.ndarray) -> np.ndarray:
             keep = np.zeros(len(c), bool)
@@ -229,7 +229,7 @@ class _FrameScene:
         H, W = calib.height, calib.width
         R, o = T_wc[:3, :3], T_wc[:3, 3]
         L = R.T @ (light - o)
-        rho = cfg.imaging.flash_radius
+        rho = FLASH_RADIUS
         env = env_s = None
         if self.env is not None:
             tri = _xf(self.V, R.T, -R.T @ o)[self.F[self.n_soil:]]  # (T, 3, 3) camera frame

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from seedmap.records import StereoCalib
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import FULL_WELL, PSF_SIGMA_PX, READ_NOISE, VIGNETTING, SimConfig
 from seedmap.sim.render.shading import REF_DISTANCE
 
 _GAMMA_LUT = np.round(255.0 * np.linspace(0, 1, 4096) ** (1 / 2.2)).astype(np.uint8)
@@ -19,30 +19,29 @@ def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random
 
     ic = cfg.imaging
     H, W = lin.shape[:2]
-    key = ("vignette", calib, ic.vignetting)
+    key = ("vignette", calib)
     vig = cache.get(key)
     if vig is None:
         yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
         rn2 = ((xx - calib.cx) ** 2 + (yy - calib.cy) ** 2) / (0.25 * (W * W + H * H))
-        vig = cache[key] = (1 - ic.vignetting * rn2).astype(np.float32)[..., None]
+        vig = cache[key] = (1 - VIGNETTING * rn2).astype(np.float32)[..., None]
     img = lin  # (the caller's buffer, scaled in place)
-    img *= vig * np.float32(gain * ic.full_well)  # electrons
+    img *= vig * np.float32(gain * FULL_WELL)  # electrons
     if ic.motion_blur:
         z = np.nanmedian(depth) if depth is not None and np.isfinite(depth).any() else REF_DISTANCE
         blur_px = calib.fx * cfg.motion.speed * ic.exposure_time / max(float(z), 0.05)
         k = int(round(blur_px))
         if k >= 2:
             img = cv2.blur(img, (k, 1))
-    if ic.psf_sigma_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), ic.psf_sigma_px)
+    img = cv2.GaussianBlur(img, (0, 0), PSF_SIGMA_PX)
     np.maximum(img, 0, out=img)
     # shot + read noise as one Gaussian of the combined variance
     noise = rng.standard_normal(img.shape, np.float32)
-    sd = img + np.float32(ic.read_noise ** 2)
+    sd = img + np.float32(READ_NOISE ** 2)
     np.sqrt(sd, out=sd)
     noise *= sd
     img += noise
-    img *= np.float32(4095.0 / ic.full_well)
+    img *= np.float32(4095.0 / FULL_WELL)
     np.clip(img, 0, 4095, out=img)
     # uint16 codes (the same truncation as an integer cast; a quarter of the memory traffic of intp)
     out = np.take(_GAMMA_LUT, img.astype(np.uint16), mode="clip")

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import AMBIENT, FLASH_RADIUS, LIGHT_CUTOFF, SimConfig
 from seedmap.sim.render.culling import _CamCovers
 from seedmap.sim.render.rays import _dot3, _Hits, _normalize3, _put_rows, _take, _xf
 from seedmap.sim.render.scene import _FrameScene
@@ -109,7 +109,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     smaller temporaries are what makes it fast."""
     ic = cfg.imaging
     world = fs.world
-    far = ic.light_cutoff + 0.3
+    far = LIGHT_CUTOFF + 0.3
     live = np.nonzero(h.t < far)[0]
     pending = _PendingShadows.empty()
     m = len(live)
@@ -203,7 +203,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     nrm *= np.where(_dot3(nrm, dl) > 0, np.float32(-1), np.float32(1))
     # flash: a random point on a small disc per sample (soft shadows)
     # (drawn in pixel order and carried along with the class sort: the samples do not depend on it)
-    rr = np.sqrt(np.take(rng.random(m, np.float32), order)) * np.float32(ic.flash_radius)
+    rr = np.sqrt(np.take(rng.random(m, np.float32), order)) * np.float32(FLASH_RADIUS)
     th = np.take(rng.random(m, np.float32), order) * np.float32(2 * np.pi)
     ca, sa = np.cos(th) * rr, np.sin(th) * rr
     lp = np.empty((3, m), np.float32)
@@ -214,7 +214,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     dist = np.sqrt(dist2)
     ldir = lv * (1 / dist)
     ndl = np.maximum(_dot3(nrm, ldir), 0)
-    fade = np.clip((np.float32(ic.light_cutoff + 0.25) - dist) * 2, 0, 1)
+    fade = np.clip((np.float32(LIGHT_CUTOFF + 0.25) - dist) * 2, 0, 1)
     fade = fade * fade * (3 - 2 * fade)
     irr = fade * np.float32(REF_DISTANCE * REF_DISTANCE) / dist2
     vis = np.ones(m, np.float32)
@@ -243,6 +243,6 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     ndl *= irr
     direct = albedo * ndl
     direct += spec
-    irr *= np.float32(ic.ambient)
+    irr *= np.float32(AMBIENT)
     irr *= ao
     return _Shading(live, direct, vis, albedo * irr, pending)

@@ -8,7 +8,7 @@ import numpy as np
 
 from seedmap.io.seedmap_dataset import Instances
 from seedmap.records import StereoCalib
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import FLASH_OFFSET, SimConfig
 from seedmap.sim.render import shadows
 from seedmap.sim.render.antialias import _antialias
 from seedmap.sim.render.labels import _instances
@@ -17,6 +17,9 @@ from seedmap.sim.render.scene import _FrameScene
 from seedmap.sim.render.sensor import _develop
 from seedmap.sim.render.shading import _shade_parts
 from seedmap.sim.world import World
+
+#: threads rendering the two cameras of a pair in parallel (1 = one after the other: the same images)
+CAMERA_THREADS = 2
 
 @dataclass
 class RenderedStereo:
@@ -42,7 +45,7 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     covers, scovers = fs.covers(T_wc, calib, light, cfg)
     h = fs.trace(o, d, pix, covers, grid=True)
     key = _object_key(h)
-    soft = cfg.imaging.shadows and cfg.imaging.flash_radius > 0
+    soft = cfg.imaging.shadows
     sparse = soft and shadows.SHADOW_STRIDE > 1
     sh = _shade_parts(fs, o, d, h, light, light_axes, cfg, rng, pix, scovers,
                       shadows._shadow_grid(H, W) if sparse else None)
@@ -76,7 +79,7 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
     """
     T_l = np.asarray(T_world_cam, float)
     T_r = right_pose(T_l, calib.baseline)
-    light = T_l[:3, :3] @ np.asarray(cfg.imaging.flash_offset, float) + T_l[:3, 3]
+    light = T_l[:3, :3] @ np.asarray(FLASH_OFFSET, float) + T_l[:3, 3]
     light_axes = np.stack([T_l[:3, 0], T_l[:3, 1]]).astype(np.float32)
     fs = _FrameScene(world, t, [T_l, T_r], calib, light)
     gain = cfg.imaging.exposure * 1.1 * float(np.exp(rng.normal(0, cfg.imaging.exposure_jitter)))
@@ -87,7 +90,7 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
 
     def one(job):
         name, T, crng = job
-        _O3D_THREADS.n = 1 if cfg.imaging.threads > 1 else 0
+        _O3D_THREADS.n = 1 if CAMERA_THREADS > 1 else 0
         # flash sampling and sensor noise from separate streams: the noise image does not depend on
         # how many flash samples the shading drew
         shade_rng, noise_rng = crng.spawn(2)
@@ -96,7 +99,7 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
         labels, inst = _instances(fs, seed_img, centers, T, calib)
         return name, (img, labels, inst, depth)
 
-    if cfg.imaging.threads > 1:
+    if CAMERA_THREADS > 1:
         from concurrent.futures import ThreadPoolExecutor
 
         _camera_dirs(world, calib)  # fill the shared caches before the threads start
