@@ -62,7 +62,8 @@ def test_pixel_covers_give_the_same_hits_as_tracing_everything(scene):
     ds = _xf(ds / np.linalg.norm(ds, axis=1, keepdims=True), T[:3, :3])
     a, b = fs.trace(o, ds, ps, covers), fs.trace(o, ds)
     np.testing.assert_array_equal(a.seed, b.seed)
-    np.testing.assert_array_equal(a.t, b.t)
+    # (Open3D's hit distance may differ in the last bit between two batches of the same rays)
+    np.testing.assert_allclose(a.t, b.t, rtol=1e-6)
 
 
 def test_shadow_covers_give_the_same_occlusion(scene):

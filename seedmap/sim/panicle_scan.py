@@ -123,7 +123,7 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
     s_world, s_arm, s_surf, s_frames = ss.spawn(4)
     world = build_panicle_world(sim, np.random.default_rng(s_world))
     factor = exposure_factor(cfg, world)
-    if factor != 1.0:  # (1.0: the config object untouched, the old renders byte for byte)
+    if factor != 1.0:  # (1.0: the config object untouched, the field gain exactly)
         sim = sim.model_copy(update={"imaging": sim.imaging.model_copy(
             update={"exposure": sim.imaging.exposure * factor})})
     z = world.seeds.xyz[:, 2]

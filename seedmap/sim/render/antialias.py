@@ -22,13 +22,8 @@ def _seed_conics(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, scale: f
 
     A pixel point ``(u, v)`` lies inside seed ``s``'s outline (its ray meets the seed's ellipsoid,
     semi-axes scaled by ``scale``) iff ``1 + a_u du + a_v dv + c_uu du^2 + c_uv du dv + c_vv dv^2 >= 0``
-    with ``du = u - u_c``, ``dv = v - v_c``; columns are ``u_c, v_c, a_u, a_v, c_uu, c_uv, c_vv`` (and
-    one of padding: a row is 32 bytes).
-    Derivation: with ``G = A diag(1/r^2) A^T`` and the centre ``c`` in the camera frame, the ray ``t x``
-    (``x = K^-1 (u, v, 1)``) meets the ellipsoid iff ``x^T E x >= 0``, ``E = g g^T - (c.g - 1) G``,
-    ``g = G c``; expanded about the projected centre ``x_c = c / c_z`` (where ``E x_c = g / c_z``) and
-    divided by ``x_c^T E x_c = c.g / c_z^2 > 0`` it is the polynomial above, evaluated near the centre
-    in float32 without cancellation (the per-seed terms are formed in float64)."""
+    with ``du = u - u_c``, ``dv = v - v_c``; columns are ``u_c, v_c, a_u, a_v, c_uu, c_uv, c_vv`` and one
+    of padding (a row is 32 bytes). Derivation: docs/method/simulator.md."""
     N = len(fs.world.seeds)
     out = np.full((N, 8), np.nan, np.float32)
     ids = fs.active_seed_ids if ids is None else ids  # (seeds of the active panicles only)
@@ -94,16 +89,9 @@ def _antialias(fs: _FrameScene, o: np.ndarray, R: np.ndarray, calib: StereoCalib
                key: np.ndarray, rgb: np.ndarray, covers: _CamCovers, scovers: _CamCovers, light: np.ndarray,
                light_axes: np.ndarray, rng: np.random.Generator, T_wc: np.ndarray, vis: np.ndarray) -> None:
     """Adaptive anti-aliasing of ``rgb`` ((H W, 3), in place): ``n x n`` sub-samples on the pixels whose
-    neighbours see another object or depth.
-
-    A sub-sample sees one of the objects seen by its pixel and the pixels it lies towards (its
-    quadrant neighbours), and takes the shading of a pixel that sees that object (no new shading or
-    shadow rays). Which one is decided without rays where geometry allows: seeds by their exact
-    image outline (``_seed_conics``; the nearest covering seed wins unless a non-seed neighbour is
-    nearer), and if no seed covers it and all non-seed neighbours agree, that surface. Only the
-    rest (leaf and stalk silhouettes, a leaf edge in front of a seed, gaps between seeds) is traced,
-    against the objects those pixels see; a traced sub-sample that meets an object none of them
-    sees is shaded on its own."""
+    neighbours see another object or depth, each taking the shading of a neighbouring pixel that sees
+    the same object; decided by seed outlines where possible, else traced against the objects the
+    neighbours see (docs/method/simulator.md)."""
     H, W = calib.height, calib.width
     n_ss = cfg.imaging.supersample
     tt = np.minimum(h.t, np.float32(1e3))

@@ -80,12 +80,7 @@ def _seed_static(world: World) -> np.ndarray:
 
 class _FrameScene:
     """The world frozen at time ``t``: env (analytic soil plane + a BVH of the stalks and swayed leaves
-    that can matter for these cameras) + the panicles in view.
-
-    Env culling: a surface seen by a camera lies in its view frustum, and a point on a shadow segment
-    from such a surface to a flash point ``L`` lies within ``|L - camera|`` of that frustum (the
-    frustum is a cone with its apex at the camera). So only triangles whose bounding spheres come
-    within that distance (plus the flash radius) of a camera's frustum can change the pixels.
+    that can be seen, or cast a shadow that can be seen, from these cameras) + the panicles in view.
     Triangle ids keep the soil's two triangles first (``n_soil``) so shading reads them like any
     other env triangle."""
 
@@ -218,14 +213,9 @@ class _FrameScene:
     def covers(self, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray,
                cfg: SimConfig) -> tuple[_CamCovers, _CamCovers]:
         """For camera ``T_wc``: the pixels whose rays may hit the env BVH / each active panicle, and
-        the pixels whose surface point may be shadowed by them (conservative: supersets of the truth).
-
-        Primary: the projected boxes of the env triangles and of the panicles' proxies (one sphere
-        per seed, the rachis triangles) at this instant. Shadows: the segment from a surface point
-        to a flash point ``L`` (camera frame, ``L_z ~ 0``) projects to the half-line from the pixel in
-        direction ``(fx L_x, fy L_y)``; where it can meet an occluder at depth >= z_near it has moved
-        at most ``f |L| / z_near`` pixels, so each box is grown by that much against the flash
-        direction (plus the flash radius)."""
+        the pixels whose surface point may be shadowed by them (supersets of the truth): projected boxes
+        of the env triangles and the panicles' proxies, grown against the flash direction for shadows
+        (docs/method/simulator.md)."""
         H, W = calib.height, calib.width
         R, o = T_wc[:3, :3], T_wc[:3, 3]
         L = R.T @ (light - o)

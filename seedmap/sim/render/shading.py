@@ -103,10 +103,8 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     ``shadow_rays`` (bool (N,), None = all): which lit rays get a shadow ray now; the others get
     ``vis = NaN`` and their shadow segments are returned in ``pending`` (``_PendingShadows``) so the
     caller can trace the ones it cannot interpolate.
-
-    Struct-of-arrays float32 throughout ((3, m) vectors, per-surface constants gathered once from
-    per-seed / per-triangle tables): the shading of a million pixels is memory-bound, so fewer and
-    smaller temporaries are what makes it fast."""
+    Float32 struct-of-arrays throughout ((3, m) vectors; per-surface constants gathered from the
+    per-seed / per-triangle tables): the shading is memory-bound."""
     ic = cfg.imaging
     world = fs.world
     far = LIGHT_CUTOFF + 0.3

@@ -78,7 +78,8 @@ def _edge_aware_sum(num: np.ndarray, den: np.ndarray, key: np.ndarray, radius: i
 
 def _filter_visibility(vis: np.ndarray, key: np.ndarray, radius: int = 2) -> np.ndarray:
     """Edge-aware box filter of the flash visibility (one random flash sample per pixel makes soft
-    shadows noisy): average only over neighbours that see the same object, separably."""
+    shadows noisy): average only over neighbours that see the same object, separably. Used with a
+    shadow ray on every pixel (``SHADOW_STRIDE = 1``), the reference the sparse samples are tested against."""
     num, den = _edge_aware_sum(vis.astype(np.float32), np.ones(vis.shape, np.float32), key, radius)
     return num / den
 
@@ -88,8 +89,7 @@ def _shadows_from_samples(fs: _FrameScene, vis: np.ndarray, key: np.ndarray, pen
     """Soft-shadow visibility of every pixel from sparse samples (``vis`` NaN where no shadow ray was
     traced): the edge-aware average of the traced samples within ``SHADOW_RADIUS`` px that see the
     same object (separable, like ``_filter_visibility``). Pixels with no such sample (slivers of an
-    object) trace their own pending shadow ray. Why: one shadow ray per pixel was a third of the
-    render's ray casts; the penumbra of the small flash disc is smooth at this sampling."""
+    object) trace their own pending shadow ray."""
     H, W = vis.shape
     out = np.ones((H, W), np.float32)
     # only the band of rows with a shadow sample or pending pixel (+ 2 radii: rows whose window
