@@ -43,7 +43,7 @@ def test_pixel_covers_give_the_same_hits_as_tracing_everything(scene):
     dc, pix = _camera_dirs(world, calib)
     o = T[:3, 3].astype(np.float32)[None]
     d = _xf(dc, T[:3, :3])
-    covers, _ = fs.covers(T, calib, light, cfg)
+    covers, _ = fs.covers(T, calib, light)
     culled = fs.trace(o, d, pix, covers, grid=True)
     full = fs.trace(o, d)  # every ray against the env BVH, bounding-sphere test per panicle
     assert (culled.seed >= 0).sum() > 1000  # the panicles are in view
@@ -74,7 +74,7 @@ def test_shadow_covers_give_the_same_occlusion(scene):
     hit = np.nonzero(h.t < 3.0)[0]
     p = o + h.t[hit, None] * _xf(dc[hit], T[:3, :3])
     start = p + (light.astype(np.float32) - p) * 1e-3
-    _, scovers = fs.covers(T, calib, light, cfg)
+    _, scovers = fs.covers(T, calib, light)
     culled = fs.occluded(start, light.astype(np.float32) - start, pix[hit], scovers)
     full = fs.occluded(start, light.astype(np.float32) - start)
     assert 0 < culled.sum() < len(hit)  # some shadows, not everything

@@ -80,7 +80,7 @@ def test_trace_only_restricts_objects_and_keeps_hits(scene):
     dc, pix = _camera_dirs(world, calib)
     o = T[:3, 3].astype(np.float32)[None]
     d = _xf(dc, T[:3, :3])
-    covers, _ = fs.covers(T, calib, np.asarray(T[:3, 3]), cfg)
+    covers, _ = fs.covers(T, calib, np.asarray(T[:3, 3]))
     rng = np.random.default_rng(1)
     pick = rng.choice(len(pix), 30000, replace=False)
     ps, ds = pix[pick], d[pick]
@@ -137,7 +137,7 @@ def test_antialiasing_matches_tracing_every_subsample(scene):
     light_axes = np.stack([T[:3, 0], T[:3, 1]]).astype(np.float32)
     dc, pix = _camera_dirs(world, calib)
     d = _xf(dc, R)
-    covers, scovers = fs.covers(T, calib, light, cfg)
+    covers, scovers = fs.covers(T, calib, light)
     h = fs.trace(o, d, pix, covers, grid=True)
     key = _object_key(h)
     sh = _shade_parts(fs, o, d, h, light, light_axes, cfg, np.random.default_rng(1), pix, scovers)

@@ -8,7 +8,7 @@ import numpy as np
 
 from seedmap.geometry import invert
 from seedmap.records import StereoCalib
-from seedmap.sim.config import FLASH_RADIUS, SimConfig
+from seedmap.sim.config import FLASH_RADIUS
 from seedmap.sim.meshes import ellipsoids, vertex_normals
 from seedmap.sim.render.culling import (
     _CamCovers,
@@ -210,8 +210,7 @@ class _FrameScene:
         return cand[inside], ts[inside]
 
     # ---- ray selection ----
-    def covers(self, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray,
-               cfg: SimConfig) -> tuple[_CamCovers, _CamCovers]:
+    def covers(self, T_wc: np.ndarray, calib: StereoCalib, light: np.ndarray) -> tuple[_CamCovers, _CamCovers]:
         """For camera ``T_wc``: the pixels whose rays may hit the env BVH / each active panicle, and
         the pixels whose surface point may be shadowed by them (supersets of the truth): projected boxes
         of the env triangles and the panicles' proxies, grown against the flash direction for shadows

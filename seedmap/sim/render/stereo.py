@@ -42,7 +42,7 @@ def _render_camera(fs: _FrameScene, T_wc: np.ndarray, calib: StereoCalib, cfg: S
     o = T_wc[:3, 3].astype(np.float32)[None, :]
     dc, pix = _camera_dirs(fs.world, calib)
     d = _xf(dc, R)
-    covers, scovers = fs.covers(T_wc, calib, light, cfg)
+    covers, scovers = fs.covers(T_wc, calib, light)
     h = fs.trace(o, d, pix, covers, grid=True)
     key = _object_key(h)
     soft = cfg.imaging.shadows
