@@ -32,8 +32,11 @@ import numpy as np
 
 def _bench_range(length: float, seed: int, scale: float, n: int) -> dict:
     from seedmap.sim import SimConfig, build_range_world, render_stereo
+    from seedmap.sim.config import FLASH_OFFSET
     from seedmap.sim.range import _rngs, n_frames, range_trajectory
-    from seedmap.sim.render import _camera_dirs, _FrameScene, _rays_tensor, _xf, right_pose
+    from seedmap.sim.render import right_pose
+    from seedmap.sim.render.rays import _camera_dirs, _rays_tensor, _xf
+    from seedmap.sim.render.scene import _FrameScene
 
     cfg = SimConfig(seed=seed, world={"length": length}, camera={"scale": scale})
     calib = cfg.camera.calib()
@@ -92,7 +95,7 @@ def _bench_range(length: float, seed: int, scale: float, n: int) -> dict:
     # baseline: one bare cast of a full image against the frame's env BVH
     i = frames[-1]
     T = traj.poses[i]
-    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+    light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
     fs = _FrameScene(world, float(traj.timestamps[i]), [T, right_pose(T, calib.baseline)], calib, light)
     dcam, _ = _camera_dirs(world, calib)
     rays = _rays_tensor(T[:3, 3].astype(np.float32)[None], _xf(dcam, T[:3, :3]))

@@ -1,6 +1,6 @@
-"""Arm-scan exposure (session 7): the default ``exposure="auto"`` exposes seeds facing the camera at the
-scan's stand-off as the field camera exposes them at 0.7 m; ``exposure=1.0`` keeps the old flash-saturated
-renders."""
+"""Arm-scan exposure: the default ``exposure="auto"`` exposes seeds facing the camera at the
+scan's stand-off as the field camera exposes them at 0.7 m; ``exposure=1.0`` keeps the field gain (flash-saturated
+close-ups)."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_auto_exposure_removes_flash_saturation(scans):
     sat_auto, grey_auto = _saturated_seed_fraction(scans["auto"])
     sat_old, grey_old = _saturated_seed_fraction(scans[1.0])
     assert sat_auto < 0.03, sat_auto
-    assert sat_old > 0.3, sat_old  # (a white panicle, as in the full-size scan of panicle 140) the old field gain at the 0.3 m stand-off: a large part of the seeds clip
+    assert sat_old > 0.3, sat_old  # (a white panicle) the field gain at the 0.3 m stand-off: a large part of the seeds clip
     assert 60 < grey_auto < 200, grey_auto  # well exposed, not dark
     assert grey_old > grey_auto + 40
 

@@ -10,15 +10,13 @@ import numpy as np
 import pytest
 
 from seedmap.sim import SimConfig, build_range_world, render_stereo, right_pose
+from seedmap.sim.config import FLASH_OFFSET
 from seedmap.sim.range import _rngs, range_trajectory
-from seedmap.sim.render import (
-    CLS_SOIL,
-    _camera_dirs,
-    _FrameScene,
-    _leaf_spheres,
-    _rays_tensor,
-    _xf,
-)
+from seedmap.sim.render import stereo
+from seedmap.sim.render.culling import _leaf_spheres
+from seedmap.sim.render.rays import _camera_dirs, _rays_tensor, _xf
+from seedmap.sim.render.scene import _FrameScene
+from seedmap.sim.world import CLS_SOIL
 
 
 def _world(length: float, scale: float = 0.15, seed: int = 3):
@@ -34,7 +32,7 @@ def scene():
     calib = cfg.camera.calib()
     i = len(traj) // 2
     T = traj.poses[i]
-    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+    light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
     fs = _FrameScene(world, float(traj.timestamps[i]), [T, right_pose(T, calib.baseline)], calib, light)
     return cfg, world, calib, T, light, fs
 
@@ -45,7 +43,7 @@ def test_pixel_covers_give_the_same_hits_as_tracing_everything(scene):
     dc, pix = _camera_dirs(world, calib)
     o = T[:3, 3].astype(np.float32)[None]
     d = _xf(dc, T[:3, :3])
-    covers, _ = fs.covers(T, calib, light, cfg)
+    covers, _ = fs.covers(T, calib, light)
     culled = fs.trace(o, d, pix, covers, grid=True)
     full = fs.trace(o, d)  # every ray against the env BVH, bounding-sphere test per panicle
     assert (culled.seed >= 0).sum() > 1000  # the panicles are in view
@@ -64,7 +62,8 @@ def test_pixel_covers_give_the_same_hits_as_tracing_everything(scene):
     ds = _xf(ds / np.linalg.norm(ds, axis=1, keepdims=True), T[:3, :3])
     a, b = fs.trace(o, ds, ps, covers), fs.trace(o, ds)
     np.testing.assert_array_equal(a.seed, b.seed)
-    np.testing.assert_array_equal(a.t, b.t)
+    # (Open3D's hit distance may differ in the last bit between two batches of the same rays)
+    np.testing.assert_allclose(a.t, b.t, rtol=1e-6)
 
 
 def test_shadow_covers_give_the_same_occlusion(scene):
@@ -75,7 +74,7 @@ def test_shadow_covers_give_the_same_occlusion(scene):
     hit = np.nonzero(h.t < 3.0)[0]
     p = o + h.t[hit, None] * _xf(dc[hit], T[:3, :3])
     start = p + (light.astype(np.float32) - p) * 1e-3
-    _, scovers = fs.covers(T, calib, light, cfg)
+    _, scovers = fs.covers(T, calib, light)
     culled = fs.occluded(start, light.astype(np.float32) - start, pix[hit], scovers)
     full = fs.occluded(start, light.astype(np.float32) - start)
     assert 0 < culled.sum() < len(hit)  # some shadows, not everything
@@ -127,7 +126,7 @@ def test_frame_geometry_does_not_grow_with_the_range():
         calib = cfg.camera.calib()
         T = traj.poses[len(traj) // 2].copy()
         T[:3, 3] = (0.8, -cfg.camera.standoff, cfg.camera.mount_height)
-        light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+        light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
         fs = _FrameScene(world, 0.0, [T, right_pose(T, calib.baseline)], calib, light)
         n_env = len(world.stalk_triangles) + len(world.leaf_vertices) * len(world.leaf_triangles)
         counts.append((len(fs.F), len(fs.active), n_env))
@@ -136,10 +135,10 @@ def test_frame_geometry_does_not_grow_with_the_range():
     assert f3 < 1.3 * f1 and a3 <= a1 + 2, counts
 
 
-def test_render_is_deterministic_with_threads(scene):
+def test_render_is_deterministic_with_threads(scene, monkeypatch):
     cfg, world, calib, T, light, fs = scene
-    cfg1 = cfg.model_copy(update={"imaging": cfg.imaging.model_copy(update={"threads": 1})})
     a = render_stereo(world, T, calib, cfg, np.random.default_rng(7), 0.4)
-    b = render_stereo(world, T, calib, cfg1, np.random.default_rng(7), 0.4)
+    monkeypatch.setattr(stereo, "CAMERA_THREADS", 1)
+    b = render_stereo(world, T, calib, cfg, np.random.default_rng(7), 0.4)
     assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
     assert np.array_equal(a.left_labels, b.left_labels) and np.array_equal(a.right_labels, b.right_labels)

@@ -9,8 +9,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import seedmap.sim.render as render
+from seedmap.sim.render import shadows
+from seedmap.sim.render.antialias import _antialias, _inside_outline, _seed_conics, _seed_entry
+from seedmap.sim.render.culling import _cover_from_boxes
+from seedmap.sim.render.rays import ENV_CODE, _camera_dirs, _Hits, _object_key, _put_rows, _rays_tensor, _unit_dirs, _xf
+from seedmap.sim.render.scene import _FrameScene
+from seedmap.sim.render.shading import _shade, _shade_parts
+from seedmap.sim.render.shadows import _filter_visibility
 from seedmap.sim import SimConfig, build_range_world, render_stereo, right_pose
+from seedmap.sim.config import FLASH_OFFSET, LIGHT_CUTOFF
 from seedmap.sim.meshes import ellipsoids
 from seedmap.sim.range import _rngs, range_trajectory
 
@@ -25,8 +32,8 @@ def scene():
     calib = cfg.camera.calib()
     i = len(traj) // 2
     T = traj.poses[i]
-    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
-    fs = render._FrameScene(world, float(traj.timestamps[i]), [T, right_pose(T, calib.baseline)], calib, light)
+    light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
+    fs = _FrameScene(world, float(traj.timestamps[i]), [T, right_pose(T, calib.baseline)], calib, light)
     return cfg, world, calib, T, float(traj.timestamps[i]), fs
 
 
@@ -39,7 +46,7 @@ def test_seed_outlines_match_the_seed_meshes(scene):
     cfg, world, calib, T, t, fs = scene
     rng = np.random.default_rng(0)
     o = T[:3, 3].astype(np.float32)
-    conics = render._seed_conics(fs, T, calib)
+    conics = _seed_conics(fs, T, calib)
     sids = rng.choice(fs.active_seed_ids, 40, replace=False)
     stops = np.array([p.seed_stop for p in world.panicles])
     agree = tot = n_hit = 0
@@ -51,14 +58,14 @@ def test_seed_outlines_match_the_seed_meshes(scene):
         sc.add_triangles(o3d.core.Tensor.from_numpy(V.astype(np.float32)),
                          o3d.core.Tensor.from_numpy(F.astype(np.uint32)))
         uv = (conics[sid, :2][None] + rng.uniform(-3, 3, (400, 2))).astype(np.float32)
-        d = render._xf(render._unit_dirs(calib, uv), T[:3, :3])
-        t_mesh = sc.cast_rays(render._rays_tensor(np.repeat(o[None], len(d), 0), d))["t_hit"].numpy()
+        d = _xf(_unit_dirs(calib, uv), T[:3, :3])
+        t_mesh = sc.cast_rays(_rays_tensor(np.repeat(o[None], len(d), 0), d))["t_hit"].numpy()
         hit = np.isfinite(t_mesh)
-        inside = render._inside_outline(conics, np.full(len(d), sid), uv[:, 0], uv[:, 1])
+        inside = _inside_outline(conics, np.full(len(d), sid), uv[:, 0], uv[:, 1])
         agree += int((hit == inside).sum())
         tot += len(d)
         n_hit += int(hit.sum())
-        t_an = render._seed_entry(fs, o, d[hit], np.full(int(hit.sum()), sid))
+        t_an = _seed_entry(fs, o, d[hit], np.full(int(hit.sum()), sid))
         r = float(world.seeds.radii[sid].max())
         err = np.abs(t_an - t_mesh[hit])
         assert np.median(err) < 0.1 * r and err.max() < r  # larger only at grazing rays near the outline
@@ -70,19 +77,19 @@ def test_trace_only_restricts_objects_and_keeps_hits(scene):
     """``trace(only=...)`` with every object allowed equals the unrestricted trace; with only the env
     allowed no ray reports a panicle hit."""
     cfg, world, calib, T, t, fs = scene
-    dc, pix = render._camera_dirs(world, calib)
+    dc, pix = _camera_dirs(world, calib)
     o = T[:3, 3].astype(np.float32)[None]
-    d = render._xf(dc, T[:3, :3])
-    covers, _ = fs.covers(T, calib, np.asarray(T[:3, 3]), cfg)
+    d = _xf(dc, T[:3, :3])
+    covers, _ = fs.covers(T, calib, np.asarray(T[:3, 3]))
     rng = np.random.default_rng(1)
     pick = rng.choice(len(pix), 30000, replace=False)
     ps, ds = pix[pick], d[pick]
-    every = np.tile(np.r_[render.ENV_CODE, fs.active].astype(np.int32), (len(ps), 1))
+    every = np.tile(np.r_[ENV_CODE, fs.active].astype(np.int32), (len(ps), 1))
     a, b = fs.trace(o, ds, ps, covers), fs.trace(o, ds, ps, covers, only=every)
     assert (a.seed >= 0).sum() > 500
     np.testing.assert_array_equal(a.seed, b.seed)
     np.testing.assert_array_equal(a.t, b.t)
-    env_only = fs.trace(o, ds, ps, covers, only=np.full((len(ps), 1), render.ENV_CODE, np.int32))
+    env_only = fs.trace(o, ds, ps, covers, only=np.full((len(ps), 1), ENV_CODE, np.int32))
     assert (env_only.seed < 0).all() and (env_only.obj < 0).all()
 
 
@@ -91,7 +98,7 @@ def test_sparse_shadows_match_dense_shadows(scene, monkeypatch):
     grey level on average (same flash samples and sensor noise)."""
     cfg, world, calib, T, t, fs = scene
     sparse = render_stereo(world, T, calib, cfg, np.random.default_rng(7), t)
-    monkeypatch.setattr(render, "SHADOW_STRIDE", 1)
+    monkeypatch.setattr(shadows, "SHADOW_STRIDE", 1)
     dense = render_stereo(world, T, calib, cfg, np.random.default_rng(7), t)
     assert np.array_equal(sparse.left_labels, dense.left_labels)
     assert np.array_equal(sparse.right_labels, dense.right_labels)
@@ -126,34 +133,34 @@ def test_antialiasing_matches_tracing_every_subsample(scene):
     cfg, world, calib, T, t, fs = scene
     H, W = calib.height, calib.width
     R, o = T[:3, :3], T[:3, 3].astype(np.float32)[None]
-    light = T[:3, :3] @ np.asarray(cfg.imaging.flash_offset) + T[:3, 3]
+    light = T[:3, :3] @ np.asarray(FLASH_OFFSET) + T[:3, 3]
     light_axes = np.stack([T[:3, 0], T[:3, 1]]).astype(np.float32)
-    dc, pix = render._camera_dirs(world, calib)
-    d = render._xf(dc, R)
-    covers, scovers = fs.covers(T, calib, light, cfg)
+    dc, pix = _camera_dirs(world, calib)
+    d = _xf(dc, R)
+    covers, scovers = fs.covers(T, calib, light)
     h = fs.trace(o, d, pix, covers, grid=True)
-    key = render._object_key(h)
-    sh = render._shade_parts(fs, o, d, h, light, light_axes, cfg, np.random.default_rng(1), pix, scovers)
+    key = _object_key(h)
+    sh = _shade_parts(fs, o, d, h, light, light_axes, cfg, np.random.default_rng(1), pix, scovers)
     vis = np.ones(H * W, np.float32)
     vis[sh.live] = sh.vis
-    vis = render._filter_visibility(vis.reshape(H, W), key.reshape(H, W)).reshape(-1)
+    vis = _filter_visibility(vis.reshape(H, W), key.reshape(H, W)).reshape(-1)
     base = sh.radiance(H * W, vis)
     fast = base.copy()
-    render._antialias(fs, o, R, calib, cfg, h, key, fast, covers, scovers, light, light_axes,
+    _antialias(fs, o, R, calib, cfg, h, key, fast, covers, scovers, light, light_axes,
                       np.random.default_rng(2), T, vis)
     # reference: every sub-sample of every edge pixel traced; another object than the pixel's is shaded
-    idx = _edge_pixels(key, h.t, H, W, cfg.imaging.light_cutoff + 0.3)
+    idx = _edge_pixels(key, h.t, H, W, LIGHT_CUTOFF + 0.3)
     offs = [(-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25)]
     ref_sum = np.zeros((len(idx), 3), np.float32)
     rng = np.random.default_rng(3)
     for du, dv in offs:
         ps = pix[idx] + np.float32([du, dv])
-        ds = render._xf(render._unit_dirs(calib, ps), R)
+        ds = _xf(_unit_dirs(calib, ps), R)
         hs = fs.trace(o, ds, ps, covers)
         sub = base[idx].copy()
-        other = np.nonzero(render._object_key(hs) != key[idx])[0]
-        hh = render._Hits(hs.t[other], hs.cls[other], hs.obj[other], hs.prim[other], hs.bary[other], hs.seed[other])
-        sub[other] = render._shade(fs, o, ds[other], hh, light, light_axes, cfg, rng, ps[other], scovers)
+        other = np.nonzero(_object_key(hs) != key[idx])[0]
+        hh = _Hits(hs.t[other], hs.cls[other], hs.obj[other], hs.prim[other], hs.bary[other], hs.seed[other])
+        sub[other] = _shade(fs, o, ds[other], hh, light, light_axes, cfg, rng, ps[other], scovers)
         ref_sum += sub
     ref = base.copy()
     ref[idx] = ref_sum / 4
@@ -179,13 +186,13 @@ def test_put_rows_and_integer_covers_equal_the_plain_numpy_forms():
         idx = rng.choice(500, 200, replace=False)
         rows = rng.random((k, 200), np.float32).T  # a transposed (non-contiguous) source, as in radiance
         ref[idx] = rows
-        render._put_rows(out, idx, rows)
+        _put_rows(out, idx, rows)
         assert np.array_equal(out, ref)
     H, W = 60, 80
     boxes = np.column_stack([rng.uniform(-10, W, 40), rng.uniform(-10, H, 40), np.zeros(40), np.zeros(40)])
     boxes[:, 2] = boxes[:, 0] + rng.uniform(-2, 25, 40)  # some empty (u1 < u0), some past the border
     boxes[:, 3] = boxes[:, 1] + rng.uniform(0, 25, 40)
-    cov = render._cover_from_boxes(boxes, H, W)
+    cov = _cover_from_boxes(boxes, H, W)
     painted = np.zeros((H, W), bool)
     vv, uu = np.mgrid[0:H, 0:W]
     for u0, v0, u1, v1 in boxes:

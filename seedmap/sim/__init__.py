@@ -8,18 +8,14 @@ Public API::
     simulate_range(cfg, out, overwrite=False, progress=True) -> Path   a whole dataset, atomically
     range_length(dataset_path) -> float | None  the range length recorded in gt/config.yaml
 
-Ground truth per image (``RenderedStereo`` / dataset ``gt/``): uint16 labels from one ray through
-each pixel centre (no anti-aliasing), ``center_uv`` = projection of the seed's true (wind-moved) 3D
-centre, ``center_visible`` = the ray towards that centre meets this seed first AND the pixel that
-contains ``center_uv`` shows this seed. The flash exposure is referenced to 0.7 m: scale
-``imaging.exposure`` by ``(d / 0.7) ** 2`` for close-up views at distance ``d`` (e.g. an arm scan).
-
-Heavy imports (Open3D) happen only when rendering.
+The world model, the renderer and the ground truth are described in docs/method/simulator.md.
+Open3D is imported only when rendering.
 """
 
 from seedmap.sim.config import PRESETS, SimConfig, preset_dict
-from seedmap.sim.range import range_length, range_trajectory, simulate_range
+from seedmap.sim.range import range_trajectory, simulate_range
 from seedmap.sim.render import RenderedStereo, render_stereo, right_pose
+from seedmap.sim.stats import range_length
 from seedmap.sim.world import World, build_panicle_world, build_range_world
 
 __all__ = [

@@ -1,90 +1,75 @@
 """A simulated UR5 arm that carries the stereo camera 360 degrees around one panicle.
 
-Capture geometry (documented choice)
-------------------------------------
-The panicle stands with its rachis along world +z, base at the origin. The UR5 is mounted
-**upside down above the panicle**, its base z axis pointing down and coaxial with the rachis
-(``ArmConfig.base_height`` metres above the panicle base). Joint 1 then turns the whole arm about
-the panicle axis, so the in-hand camera can circle the panicle a full 360 degrees at a constant
-stand-off ``radius`` without ever reaching across it -- the same motion the paper's rotating
-end-effector makes. Each desired camera pose looks horizontally (tilted by ``tilt_deg``) at the
-rachis from ``radius`` metres, image "up" = world +z. The camera sits on the flange through a
-hand-eye transform ``T_flange_cam`` (optical axis along the flange z axis).
-
-Kinematics
-----------
-Standard UR5 Denavit-Hartenberg parameters; ``T_{i-1,i} = Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``.
-Inverse kinematics is numerical (scipy least squares on the FK residual, warm-started from the
-previous view so joint 1 unwraps continuously around the circle).
-
-Error sources (each configurable, all drawn from the config's seed)
--------------------------------------------------------------------
-* joint encoder offsets (constant per joint) and per-view encoder noise: the controller servos
-  until the encoders read the commanded angles, the true angles differ by offset + noise;
-* link-length / calibration error: the true DH lengths differ from the nominal ones;
-* hand-eye error: the true camera mount differs from the nominal ``T_flange_cam``;
-* panicle sway: the panicle rotates rigidly about its base by a small random angle per view.
-
-The nominal (FK) camera pose uses the nominal DH table, the measured joints and the nominal
-hand-eye -- exactly what a real system knows. The true pose uses the true everything.
+The UR5 hangs upside down above the panicle, coaxial with the rachis, so joint 1 circles the camera
+around it. ``simulate_capture`` plans the views, solves IK on the nominal arm and applies the error
+sources (encoder offsets and noise, link lengths, hand-eye, panicle sway). Geometry and error model:
+docs/method/simulator.md.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from seedmap.config import ConfigModel
 from seedmap.errors import ConfigError, InputError
 from seedmap.geometry import invert, make_pose
+from seedmap.sim.config import drop_retired
 
 JOINT_NAMES = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
 
 
-class DHConfig(ConfigModel):
-    """Standard DH table (metres, radians) of a UR5."""
-
-    d: list[float] = Field(default_factory=lambda: [0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823])
-    a: list[float] = Field(default_factory=lambda: [0.0, -0.425, -0.39225, 0.0, 0.0, 0.0])
-    alpha: list[float] = Field(default_factory=lambda: [np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
-
-
-class HandEyeConfig(ConfigModel):
-    """Nominal camera mount on the flange: translation (m) and rotation vector (deg) of T_flange_cam."""
-
-    t: list[float] = Field(default_factory=lambda: [-0.055, 0.0, 0.06])
-    rotvec_deg: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+#: standard DH table of a UR5: d, a (m), alpha (rad)
+UR5_DH = {"d": [0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823], "a": [0.0, -0.425, -0.39225, 0.0, 0.0, 0.0],
+          "alpha": [np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0]}
+#: nominal camera mount on the flange: translation (m) and rotation vector (deg) of T_flange_cam
+HAND_EYE = {"t": [-0.055, 0.0, 0.06], "rotvec_deg": [0.0, 0.0, 0.0]}
+#: height of the inverted UR5 base above the panicle base (m)
+BASE_HEIGHT = 0.75
+#: time between views (s)
+VIEW_PERIOD_S = 1.0
 
 
 class ArmErrorConfig(ConfigModel):
     """Standard deviations of the simulated error sources (0 disables one)."""
 
+    #: constant offset of each joint encoder (deg)
     encoder_offset_deg: float = Field(0.03, ge=0)
+    #: per-view encoder noise (deg)
     encoder_noise_deg: float = Field(0.01, ge=0)
+    #: error of the DH link lengths (mm)
     link_length_mm: float = Field(0.3, ge=0)
+    #: translation error of the camera mount (mm)
     hand_eye_mm: float = Field(1.5, ge=0)
+    #: rotation error of the camera mount (deg)
     hand_eye_deg: float = Field(0.3, ge=0)
+    #: rigid tilt of the panicle about its base per view (deg)
     sway_deg: float = Field(0.3, ge=0)
 
 
 class ArmConfig(ConfigModel):
-    """Arm capture: geometry of the circle, the arm model and its error sources."""
+    """Arm capture: the circle of views and the error sources (the arm itself: the constants above)."""
 
+    #: number of views around the panicle
     views: int = Field(36, ge=3)
-    radius: float = Field(0.3, gt=0.05, description="camera stand-off from the rachis axis (m)")
-    heights: list[float] | None = Field(
-        None, description="camera heights above the panicle base (m), one ring each; None = mid-panicle"
-    )
-    tilt_deg: float = Field(0.0, description="camera pitch (positive looks down)")
-    base_height: float = Field(0.75, gt=0, description="height of the inverted UR5 base above the panicle base (m)")
-    view_period_s: float = Field(1.0, gt=0, description="time between views (s)")
-    dh: DHConfig = Field(default_factory=DHConfig)
-    hand_eye: HandEyeConfig = Field(default_factory=HandEyeConfig)
+    #: camera stand-off from the rachis axis (m)
+    radius: float = Field(0.3, gt=0.05)
+    #: camera heights above the panicle base (m), one ring each; None = mid-panicle
+    heights: list[float] | None = None
+    #: camera pitch (deg, positive looks down)
+    tilt_deg: float = 0.0
     errors: ArmErrorConfig = Field(default_factory=ArmErrorConfig)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _retired(cls, data: Any) -> Any:
+        return drop_retired(data, {"dh": UR5_DH, "hand_eye": HAND_EYE, "base_height": BASE_HEIGHT,
+                                   "view_period_s": VIEW_PERIOD_S})
 
 
 # ------------------------------------------------------------------------------------------------
@@ -100,18 +85,11 @@ class DHParams:
     a: np.ndarray
     alpha: np.ndarray
 
-    @staticmethod
-    def from_config(c: DHConfig) -> DHParams:
-        arrs = [np.asarray(x, float).reshape(-1) for x in (c.d, c.a, c.alpha)]
-        if any(len(x) != 6 for x in arrs):
-            raise ConfigError("DH table needs 6 values for each of d, a, alpha")
-        return DHParams(*arrs)
-
     def to_dict(self) -> dict:
         return {"d": self.d.tolist(), "a": self.a.tolist(), "alpha": self.alpha.tolist()}
 
 
-UR5 = DHParams.from_config(DHConfig())
+UR5 = DHParams(*(np.asarray(UR5_DH[k], float) for k in ("d", "a", "alpha")))
 
 
 def _check_q(q: np.ndarray) -> np.ndarray:
@@ -176,7 +154,7 @@ def ik(
     assert best is not None
     if best[0] > 1e-4:
         raise ConfigError(f"camera pose not reachable by the arm (IK residual {best[0] * 1000:.1f} mm); "
-                          "reduce arm.radius or change arm.base_height")
+                          "reduce arm.radius")
     q = best[1]
     # keep every joint within one turn of the warm start (continuity around the circle)
     return q0 + (q - q0 + np.pi) % (2 * np.pi) - np.pi
@@ -187,14 +165,14 @@ def ik(
 # ------------------------------------------------------------------------------------------------
 
 
-def hand_eye_matrix(c: HandEyeConfig) -> np.ndarray:
-    """T_flange_cam from the config."""
-    return make_pose(Rotation.from_rotvec(np.radians(c.rotvec_deg)).as_matrix(), c.t)
+def hand_eye_matrix() -> np.ndarray:
+    """Nominal T_flange_cam."""
+    return make_pose(Rotation.from_rotvec(np.radians(HAND_EYE["rotvec_deg"])).as_matrix(), HAND_EYE["t"])
 
 
-def base_pose(cfg: ArmConfig) -> np.ndarray:
-    """T_world_base: the base hangs ``base_height`` above the panicle base, z axis pointing down."""
-    return make_pose(Rotation.from_euler("x", 180, degrees=True).as_matrix(), [0.0, 0.0, cfg.base_height])
+def base_pose() -> np.ndarray:
+    """T_world_base: the base hangs ``BASE_HEIGHT`` above the panicle base, z axis pointing down."""
+    return make_pose(Rotation.from_euler("x", 180, degrees=True).as_matrix(), [0.0, 0.0, BASE_HEIGHT])
 
 
 def look_at_axis(azimuth: float, height: float, radius: float, tilt_deg: float = 0.0) -> np.ndarray:
@@ -244,9 +222,9 @@ class ArmCapture:
 def simulate_capture(cfg: ArmConfig, heights: list[float], rng: np.random.Generator) -> ArmCapture:
     """Plan the circle, solve IK on the nominal arm, and apply the configured error sources."""
     e = cfg.errors
-    dh_nom = DHParams.from_config(cfg.dh)
-    T_wb = base_pose(cfg)
-    X_nom = hand_eye_matrix(cfg.hand_eye)
+    dh_nom = UR5
+    T_wb = base_pose()
+    X_nom = hand_eye_matrix()
     # true arm: perturbed link lengths and mount (constant over the scan)
     sig_l = e.link_length_mm / 1000.0
     d_true = dh_nom.d + np.where(dh_nom.d != 0, rng.normal(0.0, sig_l, 6), 0.0)
@@ -276,7 +254,7 @@ def simulate_capture(cfg: ArmConfig, heights: list[float], rng: np.random.Genera
     T_true = T_wb @ fk(q_true, dh_true) @ X_true
     sway = rng.normal(0.0, np.radians(e.sway_deg), (cfg.views, 2))
     D = np.stack([make_pose(Rotation.from_rotvec([s[0], s[1], 0.0]).as_matrix()) for s in sway])
-    times = np.arange(cfg.views) * cfg.view_period_s
+    times = np.arange(cfg.views) * VIEW_PERIOD_S
     return ArmCapture(q_cmd, q_meas, q_true, T_fk, T_true, D, times, T_wb, dh_nom, dh_true, X_nom, X_true)
 
 
@@ -299,7 +277,7 @@ def _first_solution(T_bf: np.ndarray, dh: DHParams, rng: np.random.Generator) ->
         if best is None or score < best[0]:
             best = (score, q)
     if best is None:
-        raise ConfigError("first camera pose not reachable by the arm; reduce arm.radius or change arm.base_height")
+        raise ConfigError("first camera pose not reachable by the arm; reduce arm.radius")
     return best[1]
 
 

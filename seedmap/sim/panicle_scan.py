@@ -10,44 +10,41 @@ Besides the standard layout (seedmap.io.seedmap_dataset) the folder holds
 * ``gt/surface_points.npy`` points sampled on the seed ellipsoids at rest (GT surface, m)
 * ``gt/scan.yaml``        the generator config (scan + simulator)
 
-Panicle sway is applied by rendering the panicle at rest from ``D^-1 T_world_cam`` (exactly the
-view of a camera at ``T_world_cam`` looking at the swayed panicle; the scene holds nothing else),
-so the simulator's own wind is switched off for these scans.
-
-Exposure (session 7)
---------------------
-The renderer's gain makes a white surface facing the flash at ``REF_DISTANCE`` (0.7 m, the field
-camera's stand-off) near full scale; the arm camera is ~0.25 m from the seeds it faces, so with the
-field gain the flash (inverse-square fall-off) saturates most seed pixels. A real arm rig sets its
-exposure for its stand-off, so ``PanicleScanConfig.exposure="auto"`` (the default) scales
-``sim.imaging.exposure`` by ``(d / REF_DISTANCE)^2``, ``d`` = the scan's typical camera-to-seed-surface
-distance (:func:`scan_distance`). A number multiplies the gain instead; ``exposure=1.0`` renders
-exactly the images of sessions 1-6 (the field gain). The gain actually used is written to
-``gt/config.yaml`` (``imaging.exposure``; also a comment at the end of ``gt/scan.yaml``).
+Panicle sway is applied by rendering the panicle at rest from ``D^-1 T_world_cam`` (the scene holds
+nothing else), so the simulator's own wind is off for these scans. ``exposure="auto"`` scales the
+flash gain for the scan's stand-off (docs/method/simulator.md); the gain used is written to
+``gt/config.yaml`` (``imaging.exposure``).
 """
 
 from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import Any, Literal, Union
 
 import numpy as np
 import yaml
-from typing import Literal, Union
-
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from seedmap.config import ConfigModel, config_to_yaml, deep_merge
 from seedmap.errors import ConfigError, InputError
 from seedmap.geometry import invert, pose_to_tum
+from seedmap.io.atomic import atomic_output_dir, atomic_write_bytes, atomic_write_text, check_output_parent
+from seedmap.io.seedmap_dataset import DatasetWriter, SeedmapDataset
+from seedmap.io.trajectory import write_tum
+from seedmap.records import Trajectory
 from seedmap.sim.arm import ArmConfig, arm_yaml_dict, simulate_capture, write_joints_csv
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import SimConfig, drop_retired
+from seedmap.sim.render import REF_DISTANCE, render_stereo
+from seedmap.sim.world import build_panicle_world
 
 
 #: the arm scan's departures from the field simulator's defaults: a quarter-resolution camera and no
 #: simulator wind (sway is the scan's own). A partial ``sim:`` section (YAML or ``--set sim.X=...``) is
 #: merged over these, so overriding one key never brings back the field camera or the wind.
 SCAN_SIM_DEFAULTS: dict = {"camera": {"scale": 0.25}, "wind": {"enabled": False}}
+#: points sampled on each seed ellipsoid for the GT surface
+SURFACE_SAMPLES_PER_SEED = 60
 
 
 def _default_sim() -> SimConfig:
@@ -57,13 +54,18 @@ def _default_sim() -> SimConfig:
 class PanicleScanConfig(ConfigModel):
     """An arm scan: one ``seed`` drives the panicle, the arm errors and the image noise."""
 
+    #: random seed of the panicle, the arm errors and the image noise
     seed: int = 0
     arm: ArmConfig = Field(default_factory=ArmConfig)
     sim: SimConfig = Field(default_factory=_default_sim)
-    surface_samples_per_seed: int = Field(60, ge=4)
-    exposure: Union[Literal["auto"], float] = Field(
-        "auto", description='"auto": gain x (scan distance / 0.7 m)^2 so seeds facing the camera are exposed as '
-        "in the field; a number > 0 multiplies sim.imaging.exposure (1.0 = the flash-saturated renders of sessions 1-6)")
+    #: "auto": gain x (scan distance / 0.7 m)^2, seeds facing the camera exposed as in the field; a number > 0
+    #: multiplies sim.imaging.exposure (1.0 = the field gain: flash-saturated close-ups)
+    exposure: Union[Literal["auto"], float] = "auto"
+
+    @model_validator(mode="before")
+    @classmethod
+    def _retired(cls, data: Any) -> Any:
+        return drop_retired(data, {"surface_samples_per_seed": SURFACE_SAMPLES_PER_SEED})
 
     @field_validator("sim", mode="before")
     @classmethod
@@ -93,8 +95,6 @@ def scan_distance(world, arm_radius: float, quantile: float = 0.9) -> float:
 
 def exposure_factor(cfg: PanicleScanConfig, world) -> float:
     """Multiplier of ``sim.imaging.exposure`` for this scan (see the module docstring)."""
-    from seedmap.sim.render import REF_DISTANCE
-
     if cfg.exposure == "auto":
         return (scan_distance(world, cfg.arm.radius) / REF_DISTANCE) ** 2
     if not cfg.exposure > 0:
@@ -114,13 +114,6 @@ def seed_surface_points(world, per_seed: int, rng: np.random.Generator) -> np.nd
 
 def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False, progress: bool = True) -> Path:
     """Build one panicle, plan and 'execute' the arm scan, render every view and write the dataset."""
-    from seedmap.io.atomic import atomic_output_dir, atomic_write_bytes, atomic_write_text, check_output_parent
-    from seedmap.io.seedmap_dataset import DatasetWriter
-    from seedmap.io.trajectory import write_tum
-    from seedmap.records import Trajectory
-    from seedmap.sim.render import render_stereo
-    from seedmap.sim.world import build_panicle_world
-
     out = Path(out)
     check_output_parent(out)
     if out.exists() and any(out.iterdir()) and not overwrite:
@@ -130,7 +123,7 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
     s_world, s_arm, s_surf, s_frames = ss.spawn(4)
     world = build_panicle_world(sim, np.random.default_rng(s_world))
     factor = exposure_factor(cfg, world)
-    if factor != 1.0:  # (1.0: the config object untouched, the old renders byte for byte)
+    if factor != 1.0:  # (1.0: the config object untouched, the field gain exactly)
         sim = sim.model_copy(update={"imaging": sim.imaging.model_copy(
             update={"exposure": sim.imaging.exposure * factor})})
     z = world.seeds.xyz[:, 2]
@@ -153,7 +146,7 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
             f"# resolved_exposure: {sim.imaging.exposure!r} (sim.imaging.exposure used for the images)\n"
             f"# scan_distance_m: {scan_distance(world, cfg.arm.radius):.4f}\n"))
         buf = io.BytesIO()
-        np.save(buf, seed_surface_points(world, cfg.surface_samples_per_seed, np.random.default_rng(s_surf)))
+        np.save(buf, seed_surface_points(world, SURFACE_SAMPLES_PER_SEED, np.random.default_rng(s_surf)))
         atomic_write_bytes(tmp / "gt" / "surface_points.npy", buf.getvalue())
         write_joints_csv(tmp / "joints.csv", cap)
         atomic_write_text(tmp / "arm.yaml", yaml.safe_dump(arm_yaml_dict(cap, cfg.arm), sort_keys=False))
@@ -176,8 +169,6 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
 
 def gt_rest_poses(root: Path) -> np.ndarray | None:
     """True camera poses in the panicle rest frame (``D^-1 T_world_cam``) of an arm scan dataset."""
-    from seedmap.io.seedmap_dataset import SeedmapDataset
-
     ds = SeedmapDataset(root)
     tr = ds.gt_trajectory()
     if tr is None:
@@ -192,5 +183,6 @@ def gt_rest_poses(root: Path) -> np.ndarray | None:
 
 
 def gt_surface_points(root: Path) -> np.ndarray | None:
+    """The GT seed surface points (m) of an arm scan dataset, None without them."""
     p = Path(root) / "gt" / "surface_points.npy"
     return np.load(p).astype(np.float64) if p.is_file() else None

@@ -9,9 +9,14 @@ from scipy.spatial.transform import Rotation
 
 from seedmap.config import config_to_yaml
 from seedmap.errors import InputError
-
+from seedmap.geometry import pose_to_tum
+from seedmap.io.atomic import atomic_output_dir, check_output_parent
+from seedmap.io.seedmap_dataset import DatasetWriter
 from seedmap.records import Trajectory
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import ALONG_WOBBLE, ANGLE_WOBBLE_DEG, HEIGHT_WOBBLE, LATERAL_WOBBLE, SimConfig
+from seedmap.sim.render import render_stereo
+from seedmap.sim.stats import dataset_stats, write_preview, write_stats
+from seedmap.sim.world import build_range_world
 
 # left camera optical frame in the world at rest: x -> world +x, y -> world -z, z -> world +y
 R_WORLD_CAM0 = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -43,10 +48,10 @@ def range_trajectory(cfg: SimConfig, rng: np.random.Generator) -> Trajectory:
     ts = np.arange(n) / mc.fps
     s = np.linspace(0.0, 1.0, n)
     x_nom = cfg.world.length * s
-    x = x_nom + _smooth_noise(rng, x_nom, mc.along_wobble) * np.sin(np.pi * s)  # ends stay at 0 / length
-    y = -cfg.camera.standoff + _smooth_noise(rng, x_nom, mc.lateral_wobble)
-    z = cfg.camera.mount_height + _smooth_noise(rng, x_nom, mc.height_wobble)
-    a = np.radians(mc.angle_wobble_deg)
+    x = x_nom + _smooth_noise(rng, x_nom, ALONG_WOBBLE) * np.sin(np.pi * s)  # ends stay at 0 / length
+    y = -cfg.camera.standoff + _smooth_noise(rng, x_nom, LATERAL_WOBBLE)
+    z = cfg.camera.mount_height + _smooth_noise(rng, x_nom, HEIGHT_WOBBLE)
+    a = np.radians(ANGLE_WOBBLE_DEG)
     ang = np.stack([_smooth_noise(rng, x_nom, a) for _ in range(3)], 1)  # about camera x, y, z
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, :3, :3] = R_WORLD_CAM0[None] @ Rotation.from_rotvec(ang).as_matrix()
@@ -74,24 +79,6 @@ class _Reentered:
         return self.ctx.__exit__(*exc)
 
 
-def range_length(dataset_path: str | Path) -> float | None:
-    """The simulated range length (m) recorded in ``gt/config.yaml`` (None for real/unknown data)."""
-    import yaml
-
-    p = Path(dataset_path) / "gt" / "config.yaml"
-    if not p.is_file():
-        return None
-    try:
-        d = yaml.safe_load(p.read_text()) or {}
-    except yaml.YAMLError:
-        return None
-    try:
-        v = d.get("world", {}).get("length", d.get("length"))
-        return float(v) if v is not None else None
-    except (AttributeError, TypeError, ValueError):
-        return None
-
-
 def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress: bool = True, *,
                    preview: bool = False, stats: bool = False) -> Path:
     """Render a whole range dataset into ``out`` atomically (nothing is left behind on failure).
@@ -99,12 +86,6 @@ def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress:
     Writes images, calibration, times and the full ground truth (poses, seeds, panicle sway, instance
     masks/tables, the generator config). ``preview`` adds ``preview.png``; ``stats`` adds ``stats.json``.
     """
-    from seedmap.geometry import pose_to_tum as _p2t
-    from seedmap.io.atomic import atomic_output_dir, check_output_parent
-    from seedmap.io.seedmap_dataset import DatasetWriter
-    from seedmap.sim.render import render_stereo
-    from seedmap.sim.world import build_range_world
-
     out = Path(out)
     check_output_parent(out)
     if out.exists() and any(out.iterdir()) and not overwrite:
@@ -142,7 +123,7 @@ def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress:
             P = len(r.panicle_motion)
             frames.append(np.full(P, i))
             pids.append(np.arange(P))
-            rows.append(_p2t(r.panicle_motion) if P else np.zeros((0, 7)))
+            rows.append(pose_to_tum(r.panicle_motion) if P else np.zeros((0, 7)))
             if bar is not None:
                 bar.update(1)
         if bar is not None:
@@ -151,16 +132,13 @@ def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress:
             w.write_gt_panicle_poses(np.concatenate(frames), np.concatenate(pids), np.vstack(rows))
         else:
             w.write_gt_panicle_poses(np.zeros(0), np.zeros(0), np.zeros((0, 7)))
-        if stats or preview:
-            from seedmap.sim.stats import dataset_stats, write_preview, write_stats
-
-            if stats:
-                st = dataset_stats(tmp)
-                st["dataset"] = str(out)
-                write_stats(tmp, st)
-            if preview:
-                write_preview(tmp)
+        if stats:
+            st = dataset_stats(tmp)
+            st["dataset"] = str(out)
+            write_stats(tmp, st)
+        if preview:
+            write_preview(tmp)
     return out
 
 
-__all__ = ["range_trajectory", "simulate_range", "range_length", "n_frames"]
+__all__ = ["n_frames", "range_trajectory", "simulate_range"]

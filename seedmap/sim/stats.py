@@ -6,12 +6,29 @@ import json
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from seedmap.errors import InputError
+from seedmap.geometry import invert
+from seedmap.io.atomic import atomic_write_text
+from seedmap.io.images import write_png
+from seedmap.io.seedmap_dataset import SeedmapDataset
 
 
-def _frame_count(ds) -> int:
-    return len(ds)
+def range_length(dataset_path: str | Path) -> float | None:
+    """The simulated range length (m) recorded in ``gt/config.yaml`` (None for real/unknown data)."""
+    p = Path(dataset_path) / "gt" / "config.yaml"
+    if not p.is_file():
+        return None
+    try:
+        d = yaml.safe_load(p.read_text()) or {}
+    except yaml.YAMLError:
+        return None
+    try:
+        v = d.get("world", {}).get("length", d.get("length"))
+        return float(v) if v is not None else None
+    except (AttributeError, TypeError, ValueError):
+        return None
 
 
 def dataset_stats(path: str | Path) -> dict:
@@ -22,9 +39,6 @@ def dataset_stats(path: str | Path) -> dict:
     frame (median over seeds seen in consecutive frames, then median over frames), and the fraction
     of frames with a panicle in view (>= 1 visible seed / >= 50 visible seeds).
     """
-    from seedmap.geometry import invert
-    from seedmap.io.seedmap_dataset import SeedmapDataset
-
     path = Path(path)
     ds = SeedmapDataset(path)
     if not ds.has_gt:
@@ -59,8 +73,6 @@ def dataset_stats(path: str | Path) -> dict:
     def q(a: np.ndarray, p: float) -> float | None:
         return float(np.percentile(a, p)) if len(a) else None
 
-    from seedmap.sim.range import range_length
-
     return {
         "dataset": str(path),
         "frames": int(n),
@@ -85,14 +97,14 @@ def dataset_stats(path: str | Path) -> dict:
 
 
 def write_stats(path: str | Path, stats: dict) -> Path:
-    from seedmap.io.atomic import atomic_write_text
-
+    """Write ``stats.json`` into the dataset folder ``path``."""
     p = Path(path) / "stats.json"
     atomic_write_text(p, json.dumps(stats, indent=2) + "\n")
     return p
 
 
 def print_stats(stats: dict) -> None:
+    """Print the stats as a table on the terminal."""
     from rich.console import Console
     from rich.table import Table
 
@@ -116,9 +128,6 @@ def write_preview(path: str | Path, n: int = 9, width: int = 480) -> Path:
     """``preview.png``: a grid of ``n`` evenly spaced left frames with the GT centres of the seeds
     whose centre is visible drawn as green dots."""
     import cv2
-
-    from seedmap.io.images import write_png
-    from seedmap.io.seedmap_dataset import SeedmapDataset
 
     ds = SeedmapDataset(path)
     idx = np.unique(np.linspace(0, len(ds) - 1, min(n, len(ds))).round().astype(int))

@@ -17,7 +17,17 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from seedmap.io.seedmap_dataset import SeedTable
-from seedmap.sim.config import SimConfig
+from seedmap.sim.config import (
+    BACKGROUND_ROW_OFFSET,
+    LEAF_LENGTH,
+    LEAF_WIDTH,
+    PANICLE_HEIGHT,
+    PANICLE_TILT_SD_DEG,
+    ROW_JITTER,
+    STALK_RADIUS,
+    SWAY_FREQ,
+    SimConfig,
+)
 from seedmap.sim.meshes import cylinder, polyline_tube, ribbon_topology
 
 # surface classes of the renderer
@@ -140,12 +150,12 @@ def _sway_transforms(sway: np.ndarray, pivots: np.ndarray, t: float) -> np.ndarr
     return D
 
 
-def _sway_params(rng: np.random.Generator, n: int, amp_deg: float, cfg: SimConfig) -> np.ndarray:
+def _sway_params(rng: np.random.Generator, n: int, amp_deg: float) -> np.ndarray:
     out = np.zeros((n, 2, N_SWAY, 3))
     a = np.radians(amp_deg)
     # split the amplitude over the sinusoids so the peak stays near amp_deg
     out[..., 0] = a * rng.uniform(0.4, 0.8, (n, 2, N_SWAY)) / np.sqrt(N_SWAY)
-    out[..., 1] = rng.uniform(cfg.wind.freq_min, max(cfg.wind.freq_max, cfg.wind.freq_min), (n, 2, N_SWAY))
+    out[..., 1] = rng.uniform(SWAY_FREQ[0], SWAY_FREQ[1], (n, 2, N_SWAY))
     out[..., 2] = rng.uniform(0, 2 * np.pi, (n, 2, N_SWAY))
     return out
 
@@ -367,7 +377,7 @@ def _add_panicle(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, base: 
         id=pid, base=np.asarray(base, float), axis=np.asarray(axis, float), length=float(L), width=float(W),
         loose=loose, color=color, seed_start=parts.n_seeds, seed_stop=parts.n_seeds + n, center=center,
         radius=radius, rachis_vertices=rv, rachis_triangles=g.rachis_f,
-        sway=_sway_params(rng, 1, cfg.wind.panicle_amplitude_deg, cfg)[0]))
+        sway=_sway_params(rng, 1, cfg.wind.panicle_amplitude_deg)[0]))
     parts.seeds_xyz.append(xyz)
     parts.seeds_axes.append(axes)
     parts.seeds_radii.append(g.radii)
@@ -409,10 +419,10 @@ def _leaf_vertices(rng: np.random.Generator, attach: np.ndarray, azimuth: float,
 def _add_plant(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, x: float, y: float,
                with_panicle: bool) -> None:
     pc, wc = cfg.panicle, cfg.world
-    tilt = np.radians(abs(rng.normal(0, pc.tilt_sd_deg)))
+    tilt = np.radians(abs(rng.normal(0, PANICLE_TILT_SD_DEG)))
     tdir = rng.uniform(0, 2 * np.pi)
     axis = np.array([np.sin(tilt) * np.cos(tdir), np.sin(tilt) * np.sin(tdir), np.cos(tilt)])
-    c_h = max(0.3, rng.normal(pc.center_height_mean, pc.center_height_sd))
+    c_h = max(0.3, rng.normal(PANICLE_HEIGHT[0], PANICLE_HEIGHT[1]))
     L_guess = 0.5 * (pc.length_min + pc.length_max)
     top = np.array([x, y, c_h - 0.5 * L_guess * axis[2]]) - 0.5 * L_guess * np.array([axis[0], axis[1], 0])
     ground = np.array([x + rng.normal(0, 0.02), y + rng.normal(0, 0.02), 0.0])
@@ -421,7 +431,7 @@ def _add_plant(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, x: float
     s = np.linspace(0, 1, n_pts)
     bend = rng.normal(0, 0.015, 3) * np.array([1, 1, 0])
     pts = ground + s[:, None] * (top - ground) + np.sin(np.pi * s)[:, None] * bend
-    r0 = wc.stalk_radius * rng.uniform(0.85, 1.15)
+    r0 = STALK_RADIUS * rng.uniform(0.85, 1.15)
     radii = r0 * (1 - 0.55 * s)
     v, f = polyline_tube(pts, radii, sides=10)
     parts.stalk_f.append(f + parts.n_stalk_v)
@@ -440,8 +450,8 @@ def _add_plant(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, x: float
         h = 0.25 + (h_top - 0.25) * frac ** 0.8
         attach = ground + (h / max(top[2], 1e-6)) * (top - ground)
         az = phi0 + np.pi * k + rng.normal(0, 0.5)
-        length = rng.uniform(wc.leaf_length_min, wc.leaf_length_max) * (0.75 if k == n_leaves - 1 else 1.0)
-        width = rng.uniform(wc.leaf_width_min, wc.leaf_width_max)
+        length = rng.uniform(LEAF_LENGTH[0], LEAF_LENGTH[1]) * (0.75 if k == n_leaves - 1 else 1.0)
+        width = rng.uniform(LEAF_WIDTH[0], LEAF_WIDTH[1])
         v = _leaf_vertices(rng, attach, az, length, width)
         # the robot drives 'standoff' from the row: leaves reaching into its path would be pushed
         # aside, so squash any leaf that comes closer than 0.3 m to the lens plane
@@ -492,7 +502,7 @@ def _assemble(kind: str, cfg: SimConfig, parts: _Parts, rng: np.random.Generator
         kind=kind, cfg=cfg, length=length, seeds=seeds, seed_axes=axes, seed_albedo=albedo, glume_albedo=glume,
         glume_extent=extent, seed_ao=ao, panicles=parts.panicles, leaf_vertices=leaves, leaf_triangles=lf,
         leaf_uv=luv, leaf_attach=attach, leaf_color=np.clip(lcol, 0.01, 0.9),
-        leaf_sway=_sway_params(rng, len(attach), cfg.wind.leaf_amplitude_deg, cfg), stalk_vertices=sv,
+        leaf_sway=_sway_params(rng, len(attach), cfg.wind.leaf_amplitude_deg), stalk_vertices=sv,
         stalk_triangles=sf, stalk_color=scol, soil_texture=_soil_texture(rng), has_soil=has_soil)
 
 
@@ -507,11 +517,11 @@ def build_range_world(cfg: SimConfig, rng: np.random.Generator) -> World:
         xs.append(x)
         x += rng.uniform(wc.spacing_min, wc.spacing_max)
     for x in xs:
-        _add_plant(parts, rng, cfg, float(x), float(rng.normal(0, wc.row_jitter)), with_panicle=True)
+        _add_plant(parts, rng, cfg, float(x), float(rng.normal(0, ROW_JITTER)), with_panicle=True)
     if wc.background_row:
         x = rng.uniform(-0.5, 0.0)
         while x <= wc.length + 0.5:
-            _add_plant(parts, rng, cfg, float(x), wc.background_row_offset + float(rng.normal(0, wc.row_jitter)),
+            _add_plant(parts, rng, cfg, float(x), BACKGROUND_ROW_OFFSET + float(rng.normal(0, ROW_JITTER)),
                        with_panicle=False)
             x += rng.uniform(wc.spacing_min, wc.spacing_max)
     return _assemble("range", cfg, parts, rng, float(wc.length), has_soil=True)
