@@ -1,0 +1,5 @@
+"""``python -m seedmap.cli``: the ``seedmap`` command."""
+
+from seedmap.cli import main
+
+main()

@@ -1,0 +1,1 @@
+"""``seedmap config show``: the configuration a command runs with, as commented YAML."""
