@@ -69,7 +69,7 @@ def simulate_panicle_cmd(
     views: Optional[int] = typer.Option(None, "--views", help="Number of views around the panicle (default 36)."),
     exposure: Optional[str] = typer.Option(
         None, "--exposure", help="auto (default: exposed for the scan's stand-off) or a gain factor; 1.0 = the "
-                                 "flash-saturated field gain of the scans of sessions 1-6."),
+                                 "field ranges' gain, flash-saturated at the arm's stand-off."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset folder."),

@@ -206,7 +206,7 @@ def train_cnn_refiner_cmd(
 ) -> None:
     """Train the fast CNN's learned second stage (rescoring + box residual per heatmap peak; torch on CPU).
 
-    The defaults reproduce the shipped refiner (README, seed detection, session 12)."""
+    The defaults reproduce the shipped refiner (README, seed detection)."""
     from seedmap.detect.learned import require_torch
 
     require_torch()
@@ -250,8 +250,8 @@ def train_fast_cnn_cmd(
     crop: int = typer.Option(96, "--crop", help="Crop size (px)."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and crops."),
     threads: int = typer.Option(1, "--threads", help="torch CPU threads."),
-    c1: int = typer.Option(8, "--c1", help="Channels at full resolution (session 3: 12)."),
-    c2: int = typer.Option(16, "--c2", help="Channels at half resolution (session 3: 24)."),
+    c1: int = typer.Option(8, "--c1", help="Channels at full resolution."),
+    c2: int = typer.Option(16, "--c2", help="Channels at half resolution."),
     iou_weight: float = typer.Option(1.0, "--iou-weight", help="Weight of the box 1-GIoU loss (0 = L1 only)."),
     scale_prob: float = typer.Option(0.5, "--scale-prob", help="Fraction of crops rescaled by 0.8-1.7x."),
     heat_min_area: float = typer.Option(10.0, "--heat-min-area",
@@ -283,7 +283,7 @@ def train_fast_cnn_cmd(
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
 
-    The defaults reproduce the shipped weights (session 4) from data/det_s1 and det_s31-35, --val data/det_s36."""
+    The defaults reproduce the shipped weights from data/det_s1 and det_s31-35, --val data/det_s36."""
     from seedmap.detect.learned import require_torch
 
     require_torch()
