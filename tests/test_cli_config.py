@@ -32,6 +32,12 @@ class _Child(_Outer):
     extra: str = "yes: quoted"
 
 
+class _InnerDefaults(_Inner):
+    """Only a default changes."""
+
+    a: int = 5
+
+
 def _show(args: list, monkeypatch, capsys) -> tuple[int, str, str]:
     code = run_cli(["config", "show", *args], monkeypatch)
     out = capsys.readouterr()
@@ -45,6 +51,7 @@ def test_field_docs_from_description_comments_and_parents():
     assert field_doc(_Outer, "name") == ""
     assert field_doc(_Child, "extra") == "the child's own field"
     assert field_doc(_Child, "x") == "described in Field"  # declared by the parent class
+    assert field_doc(_InnerDefaults, "a") == "a value documented above over two lines"  # the parent's comment
 
 
 def test_yaml_has_one_comment_per_documented_field_and_loads_back(tmp_path):

@@ -95,9 +95,10 @@ def field_doc(model: type[BaseModel], name: str) -> str:
     info = model.model_fields[name]
     if info.description:
         return _one_line(info.description)
-    for klass in model.__mro__:  # the class that declares the field holds its comment
-        if name in klass.__dict__.get("__annotations__", {}):
-            return _one_line(_source_comments(klass).get(name, ""))
+    for klass in model.__mro__:  # the nearest class that declares the field with a comment (a subclass may
+        if name in klass.__dict__.get("__annotations__", {}):  # only change the default)
+            if text := _source_comments(klass).get(name):
+                return _one_line(text)
     return ""
 
 
