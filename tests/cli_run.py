@@ -1,4 +1,4 @@
-"""Run the ``seedmap`` CLI in-process from a test (shared by the audit tests)."""
+"""Run the ``seedmap`` CLI in-process from a test (shared by the CLI tests)."""
 
 from __future__ import annotations
 

@@ -150,7 +150,7 @@ def test_refiner_training_data_from_coco_masks_matches_the_simulated_gt(cnn_rang
     simulated GT itself; annotations with boxes only are refused (the refiner learns from masks)."""
     import json
 
-    from test_audit2_labels import _export_coco  # tests/ is on sys.path
+    from test_cli_coco_labels import _export_coco  # tests/ is on sys.path
 
     from seedmap.detect.cnn_refine import training_data
     from seedmap.detect.config import CnnConfig, min_visible_seed_px

@@ -1,9 +1,6 @@
-"""Second user's-eye audit (session 8): a user's own arm scan (images + calib.yaml + times.txt + joints.csv +
-arm.yaml, no gt/) through `seedmap reconstruct` and `seedmap count`.
-
-Found here: `seedmap count R` on an unchanged reconstruction gave another count than the reconstruction
-(910 vs 912 seeds, 495 vs 494 with gt) because detections.csv kept 6 significant digits; a joints.csv
-whose rows are out of view order said 'joints file has 6 rows for views 0..5, but the dataset has 6 frames'.
+"""A user's own arm scan (images + calib.yaml + times.txt + joints.csv + arm.yaml, no gt/) through
+`seedmap reconstruct` and `seedmap count`: the recount of an unchanged reconstruction gives its count (the
+stored detections keep full precision), bad scans are one line, other image layouts read alike.
 """
 
 from __future__ import annotations
@@ -32,7 +29,7 @@ def user_scan(tmp_path_factory):
     from seedmap.config import load_config
     from seedmap.sim.panicle_scan import PanicleScanConfig, simulate_panicle
 
-    root = tmp_path_factory.mktemp("audit2_arm")
+    root = tmp_path_factory.mktemp("arm")
     cfg = load_config(PanicleScanConfig, None, ["seed=7", "arm.views=6"])
     sim = simulate_panicle(cfg, root / "sim", overwrite=False, progress=False)
     user = root / "user"
@@ -42,7 +39,7 @@ def user_scan(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def user_result(user_scan, tmp_path_factory):
-    out = tmp_path_factory.mktemp("audit2_arm_res") / "rec"
+    out = tmp_path_factory.mktemp("arm_res") / "rec"
     mp = pytest.MonkeyPatch()
     try:
         assert _run(["reconstruct", user_scan, "--detector", "fast", "-q", "--out", out], mp) == 0
@@ -80,7 +77,7 @@ def test_count_repeats_the_reconstructions_count_and_config_repeats_it(user_scan
     cnt = tmp_path / "cnt"
     assert _run(["count", user_result, "--out", cnt], monkeypatch) == 0
     c = json.loads((cnt / "count.json").read_text())
-    assert c["seed_count"] == m["seed_count"]  # was off by 1-2 seeds (rounded detections.csv)
+    assert c["seed_count"] == m["seed_count"]  # detections.csv keeps full precision
     # the same seeds (their order may differ where the stored poses' 1e-9 rounding breaks a tie)
     from scipy.spatial import cKDTree
 
@@ -147,8 +144,7 @@ def test_bad_user_scan_is_one_line(user_scan, tmp_path, monkeypatch, capsys, cas
 
 
 def test_jpeg_user_scan_reconstructs(user_scan, user_result, tmp_path, monkeypatch):
-    """JPEG images (not seedmap's NNNNNN.png layout) are read by the image-folder loader (session 9; session 8
-    refused them with a one-line error)."""
+    """JPEG images (not seedmap's NNNNNN.png layout) are read by the image-folder loader."""
     scan = tmp_path / "scan"
     shutil.copytree(user_scan, scan)
     for f in sorted(scan.glob("*/*.png")):
@@ -169,8 +165,42 @@ def test_simulate_panicle_repeats_from_scan_yaml_and_names_it_for_config_yaml(tm
     for rel in ("joints.csv", "arm.yaml", "left/000002.png", "right/000001.png", "gt/seeds.csv"):
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     capsys.readouterr()
-    # gt/config.yaml is the scene's config: was "unknown config key 'preset'"
+    # gt/config.yaml is the scene's config: the error names the scan.yaml beside it
     assert _run(["simulate", "panicle", "-q", "--config", a / "gt" / "config.yaml", "--out", tmp_path / "c"],
                 monkeypatch) == 2
     line = _error_line(capsys)
     assert str(a / "gt" / "scan.yaml") in line and str(a / "gt" / "config.yaml") in line
+
+
+def test_reconstruct_reads_a_plain_image_folder_with_joints_elsewhere(tmp_path, monkeypatch, capsys):
+    """A user's arm scan as a generic stereo folder (images not named NNNNNN.png, joints and arm files kept
+    elsewhere) reconstructs to the same result as the same scan in seedmap's layout."""
+    data = tmp_path / "p3"
+    assert _run(["simulate", "panicle", "--seed", "3", "--views", "4", "--out", data, "-q",
+                 "--set", "sim.camera.scale=0.18"], monkeypatch) == 0
+    user, arm_dir = tmp_path / "user_scan", tmp_path / "robot"
+    for cam in ("left", "right"):
+        (user / cam).mkdir(parents=True)
+        for k, f in enumerate(sorted((data / cam).glob("*.png"))):
+            shutil.copy(f, user / cam / f"view_{k:02d}.png")
+    shutil.copy(data / "calib.yaml", user / "calib.yaml")
+    shutil.copy(data / "times.txt", user / "times.txt")
+    arm_dir.mkdir()
+    shutil.copy(data / "joints.csv", arm_dir / "joints_rad.csv")
+    shutil.copy(data / "arm.yaml", arm_dir / "ur5.yaml")
+    before = sorted(p.name for p in user.rglob("*"))
+
+    common = ["--register", "seeds", "--detector", "fast", "-q"]
+    assert _run(["reconstruct", data, "--out", tmp_path / "a", *common], monkeypatch) == 0
+    # without the joints file: one line naming the missing file, nothing written
+    capsys.readouterr()
+    assert _run(["reconstruct", user, "--out", tmp_path / "b", *common], monkeypatch) == 2
+    assert "joints.csv" in capsys.readouterr().err and not (tmp_path / "b").exists()
+    assert _run(["reconstruct", user, "--out", tmp_path / "b", *common, "--set", f"joints={arm_dir / 'joints_rad.csv'}",
+                 "--set", f"arm={arm_dir / 'ur5.yaml'}"], monkeypatch) == 0
+    a = json.loads((tmp_path / "a" / "metrics.json").read_text())
+    b = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert a["seed_count"] > 20 and b["seed_count"] == a["seed_count"]
+    assert "gt" in a and "gt" not in b  # a user's folder has no ground truth
+    assert (tmp_path / "a" / "seeds.csv").read_bytes() == (tmp_path / "b" / "seeds.csv").read_bytes()
+    assert sorted(p.name for p in user.rglob("*")) == before  # the input is untouched

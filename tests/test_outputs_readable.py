@@ -1,9 +1,6 @@
-"""Second user's-eye audit (session 8): result files are what the README's "Outputs" promises, readable by
-the tools users have (evo, Open3D, COCO consumers), and a result's config.yaml passed back with --config
-repeats the run byte for byte.
-
-Found here: `seedmap slam DATA --detector fast --out R` wrote a config.yaml without the detector or the
-matcher, so `seedmap slam DATA --config R/config.yaml` silently ran the gt oracle (another trajectory).
+"""Result files are what the README's "Outputs" promises, readable by the tools users have (evo, Open3D,
+COCO consumers), and a result's config.yaml passed back with --config repeats the run byte for byte (it
+records the matcher and the detector too, so the run is not silently repeated with the gt oracle).
 """
 
 from __future__ import annotations
@@ -11,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -20,7 +18,7 @@ from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir imp
 
 @pytest.fixture(scope="module")
 def slam_result(tiny_range, tmp_path_factory):
-    out = tmp_path_factory.mktemp("audit2_slam") / "r"
+    out = tmp_path_factory.mktemp("slam") / "r"
     mp = pytest.MonkeyPatch()
     try:
         assert _run(["slam", tiny_range, "--detector", "fast", "-q", "--out", out], mp) == 0
@@ -81,8 +79,8 @@ def test_slam_config_yaml_repeats_the_run(slam_result, tiny_range, tmp_path, mon
     assert json.loads((orb / "metrics.json").read_text())["matcher"] == "orb"
 
 
-def test_slam_config_of_session_7_without_matcher_or_detector_still_reads(tiny_range, tmp_path, monkeypatch):
-    # configs written before the fix lack the two keys: they mean the old defaults (seeds, gt oracle)
+def test_slam_config_without_matcher_or_detector_still_reads(tiny_range, tmp_path, monkeypatch):
+    # configs of seedmap 0.1.0 before these keys existed: they mean the options' defaults (seeds, gt oracle)
     from seedmap.slam.config import SlamConfig
 
     old = SlamConfig().model_dump(mode="json")
@@ -155,3 +153,54 @@ def test_batch_takes_matcher_and_detector_from_the_config(slam_result, tiny_rang
     for p in (out / "config.yaml", out / "r1" / "config.yaml"):
         c = yaml.safe_load(p.read_text())
         assert c["detector"] == "fast" and c["matcher"] == "seeds", p
+
+
+def _record(box, ellipse):
+    return {"frame": 0, "camera": "left", "image": "left/000000.png", "width": 100, "height": 80,
+            "boxes": [box], "scores": [0.9], "ellipses": [ellipse], "seed_ids": [-1]}
+
+
+def test_coco_segmentation_lies_inside_its_bbox_and_area_fits():
+    from seedmap.detect.io import coco_from_records
+
+    # an ellipse (full axes 16 x 6 px) that sticks out of a 10 x 8 box on the right, and one well inside its box
+    out, inside = coco_from_records([_record([40.0, 30.0, 50.0, 38.0], [47.0, 34.0, 16.0, 6.0, 0.0]),
+                                     _record([10.0, 10.0, 30.0, 30.0], [20.0, 20.0, 8.0, 4.0, 30.0])])["annotations"]
+    x, y, w, h = out["bbox"]
+    poly = np.asarray(out["segmentation"][0]).reshape(-1, 2)
+    assert poly[:, 0].min() >= x - 1e-3 and poly[:, 0].max() <= x + w + 1e-3
+    assert poly[:, 1].min() >= y - 1e-3 and poly[:, 1].max() <= y + h + 1e-3
+    assert out["area"] <= w * h
+    # the clipped area is the part of the ellipse inside the box, measured independently on a 1/8-px raster
+    s = 8
+    full = np.zeros((80 * s, 100 * s), np.uint8)
+    cv2.ellipse(full, ((47.5 * s, 34.5 * s), (16.0 * s, 6.0 * s), 0.0), 1, -1)
+    box = np.zeros_like(full)
+    box[int(30 * s):int(38 * s), int(40 * s):int(50 * s)] = 1
+    raster = float((full & box).sum()) / s**2
+    assert abs(out["area"] - raster) / raster < 0.06, (out["area"], raster)
+    assert out["area"] < np.pi * 16 * 6 / 4 * 0.8  # clearly less than the whole ellipse
+    # inside its box: the analytic ellipse area
+    assert inside["area"] == round(np.pi * 8 * 4 / 4, 2)
+    assert out["ellipse"]["major"] == 16.0  # the ellipse itself is still reported whole
+
+
+def test_detect_result_config_repeats_the_run(tiny_range, tmp_path, monkeypatch):
+    first, again, plain = tmp_path / "first", tmp_path / "again", tmp_path / "plain"
+    assert _run(["detect", tiny_range, "--detector", "gt", "--out", first], monkeypatch) == 0
+    cfg = yaml.safe_load((first / "config.yaml").read_text())
+    assert cfg["detector"] == "gt" and cfg["weights"] is None
+    # the result's config alone repeats it (no --detector): same detections, byte for byte
+    assert _run(["detect", tiny_range, "--config", first / "config.yaml", "--out", again], monkeypatch) == 0
+    assert (again / "detections.jsonl").read_bytes() == (first / "detections.jsonl").read_bytes()
+    # --detector overrides the config's
+    over = tmp_path / "over"
+    assert _run(["detect", tiny_range, "--config", first / "config.yaml", "--detector", "fast", "--out", over],
+                monkeypatch) == 0
+    assert yaml.safe_load((over / "config.yaml").read_text())["detector"] == "fast"
+    assert json.loads((over / "meta.json").read_text())["detector"] != "fast"  # fast = the CNN ("fast-cnn")
+    # a config without the detector key (a plain detector config) still loads; it means the default detector
+    old = tmp_path / "old.yaml"
+    old.write_text(yaml.safe_dump({k: v for k, v in cfg.items() if k not in ("detector", "weights")}))
+    assert _run(["detect", tiny_range, "--config", old, "--out", plain], monkeypatch) == 0
+    assert yaml.safe_load((plain / "config.yaml").read_text())["detector"] == "fast"

@@ -1,4 +1,4 @@
-"""User's-eye audit (session 8) on real data: ../shared/realdata (read-only; skipped when absent).
+"""Real data: ../shared/realdata (read-only; skipped when absent).
 
 The same 24 real EuRoC V1_01 stereo pairs through three loaders (EuRoC folder, a ROS1 bag with raw images and
 CameraInfo, a KITTI-layout folder), and SIFT SLAM on them against the published ground truth.
@@ -130,7 +130,7 @@ def test_sift_slam_on_real_euroc_against_ground_truth(tmp_path):
 
 
 def test_gt_oracle_on_real_data_is_one_line(tmp_path, monkeypatch, capsys):
-    # `seedmap detect EUROC --detector gt` was a TypeError traceback (GtDetector got the opened EurocSequence)
+    # `seedmap detect EUROC --detector gt`: one line, not a TypeError traceback (GtDetector got a EurocSequence)
     import sys
 
     from seedmap import cli

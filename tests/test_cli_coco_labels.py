@@ -1,9 +1,9 @@
-"""Second user's-eye audit (session 8): the user's own COCO labels for `seedmap train`.
+"""The user's own COCO labels for `seedmap train`.
 
 A COCO file with polygon AND RLE masks exported from a tiny simulated range is read back to the GT masks
 and trains the segmenter for a few CPU steps; bad COCO files are one line naming the file, exit 2, and
-leave no run folder (a bbox outside the image was an OpenCV traceback, an unknown category trained
-silently, a missing image was found only after the run folder had been written).
+leave no run folder (a bbox outside the image, an unknown category, a missing image are found before the
+run folder is written).
 """
 
 from __future__ import annotations
@@ -176,5 +176,5 @@ def test_fast_cnn_on_a_coco_file_says_which_trainers_read_coco(tiny_range, tmp_p
     out = tmp_path / "fc"
     assert _run(["train", "fast-cnn", p, "--out", out, "--steps", "1"], monkeypatch) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
-    assert len(err) == 1 and str(p) in err[0] and "train segmenter" in err[0], err  # was 'folder not found'
+    assert len(err) == 1 and str(p) in err[0] and "train segmenter" in err[0], err
     assert not out.exists()

@@ -1,0 +1,49 @@
+"""``seedmap detect``: seeds (boxes, ellipses, keypoints) in every frame of a dataset (seedmap.detect)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from seedmap.cli.app import ConfigOpt, SetOpt, app
+from seedmap.errors import SeedmapError
+
+
+@app.command("detect")
+def detect_cmd(
+    dataset: Path = typer.Argument(..., help="Dataset folder (seedmap layout or any supported format)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist unless --overwrite)."),
+    detector: Optional[str] = typer.Option(None, "--detector", "-d",
+                                           help="gt (ORACLE, simulated data) | fast (CNN if shipped) | fast-classic | "
+                                                "fast-cnn | frcnn-pix2pix | default (the --config's detector, else "
+                                                "default = the best available)."),
+    weights: Optional[Path] = typer.Option(None, "--weights",
+                                           help="Weights: .safetensors of frcnn-pix2pix, .onnx of fast-cnn."),
+    overlay: bool = typer.Option(False, "--overlay", help="Also write PNGs with the fitted ellipses drawn."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output folder."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Detect seeds (boxes, ellipses, keypoints) in every frame: JSON lines + COCO JSON (+ overlays)."""
+    from seedmap.config import load_config
+    from seedmap.detect.run import DetectRunConfig, run_detect
+
+    cfg = load_config(DetectRunConfig, config, set_ or [])
+    detector = detector or cfg.detector or "default"  # a result's config.yaml records what ran
+    if weights is None and cfg.weights and detector == cfg.detector:
+        weights = Path(cfg.weights)
+    if detector == "gt":  # the oracle reads seedmap's GT layout: say so for real data (was a TypeError traceback)
+        from seedmap.io.seedmap_dataset import SeedmapDataset
+
+        SeedmapDataset(dataset)
+    if weights is not None:  # only these two read --weights; the others would silently use their own
+        from seedmap.detect import default_detector_name
+
+        name = default_detector_name() if detector in ("default", "auto") else detector
+        if name not in ("fast-cnn", "frcnn-pix2pix"):
+            raise SeedmapError(f"--weights is read by --detector fast-cnn (.onnx) and frcnn-pix2pix only; "
+                               f"{name!r} would ignore {weights} (use --detector fast-cnn --weights FILE)")
+    p = run_detect(dataset, out, detector, weights, cfg, overlay=overlay, overwrite=overwrite)
+    typer.echo(f"detections written to {p}")

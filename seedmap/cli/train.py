@@ -1,0 +1,328 @@
+"""``seedmap train ...``: the learned detectors, their refiners, the count calibration, ONNX export."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from seedmap.cli.app import ConfigOpt, SetOpt, train_app
+from seedmap.errors import SeedmapError
+
+
+def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],
+                  config: Optional[Path], set_: Optional[List[str]], resume: bool, overwrite: bool) -> None:
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.config import load_config
+    from seedmap.detect.labels import open_labelled
+    from seedmap.detect.learned import train as tr
+
+    cls = tr.DetectorTrainConfig if kind == "detector" else tr.SegmenterTrainConfig
+    cfg = load_config(cls, config, set_ or [])
+    src = open_labelled(data, images_root)
+    vsrc = open_labelled(val, images_root) if val is not None else None
+    fn = tr.train_detector if kind == "detector" else tr.train_segmenter
+    p = fn(src, out, cfg, val_source=vsrc, resume=resume, overwrite=overwrite)
+    typer.echo(f"{kind} weights written to {p} (metrics: {out / (kind + '_metrics.jsonl')})")
+
+
+@train_app.command("detector")
+def train_detector_cmd(
+    data: Path = typer.Argument(..., help="Simulated dataset folder (GT masks) or a COCO .json with boxes."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for detector.safetensors, checkpoint, metrics."),
+    val: Optional[Path] = typer.Option(None, "--val", help="Held-out data (default: last val_fraction of DATA)."),
+    images_root: Optional[Path] = typer.Option(None, "--images-root", help="COCO: folder of the image files."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from detector_checkpoint.safetensors."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Start over in a folder that holds weights."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Train the Faster R-CNN (VGG16) seed detector (needs the learned extra, torch; a GPU for full training)."""
+    _train_common("detector", data, out, val, images_root, config, set_, resume, overwrite)
+
+
+@train_app.command("segmenter")
+def train_segmenter_cmd(
+    data: Path = typer.Argument(..., help="Simulated dataset folder (GT masks) or a COCO .json with masks."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for segmenter.safetensors/.onnx, checkpoint, metrics."),
+    val: Optional[Path] = typer.Option(None, "--val", help="Held-out data (default: last val_fraction of DATA)."),
+    images_root: Optional[Path] = typer.Option(None, "--images-root", help="COCO: folder of the image files."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from segmenter_checkpoint.safetensors."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Start over in a folder that holds weights."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Train the pix2pix seed segmenter (U-Net + PatchGAN) on box crops (needs the learned extra, torch)."""
+    _train_common("segmenter", data, out, val, images_root, config, set_, resume, overwrite)
+
+
+@train_app.command("fast-refiner")
+def train_fast_refiner_cmd(
+    data: Path = typer.Argument(..., help="Simulated dataset folder with GT masks (e.g. data/det_s1)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Refiner weights file (.safetensors) to write."),
+    steps: int = typer.Option(3000, "--steps", help="Training steps (batch 512)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and batches."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing weights file."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+) -> None:
+    """Train the fast detector's learned second stage (seed score + box per candidate; torch on CPU, ~1 min)."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.config import load_config
+    from seedmap.detect.config import DetectConfig
+    from seedmap.detect.refine import train_refiner, training_samples
+
+    if out.exists() and not overwrite:
+        raise SeedmapError(f"{out} exists (use --overwrite to replace it)")
+    cfg = load_config(DetectConfig, config, set_ or [])
+    x, y, s = training_samples(data, None, cfg.fast, progress=True)
+    ref = train_refiner(x, y, s, steps=steps, seed=seed)
+    ref.info = {**(ref.info or {}), "data": str(data), "fast_config": cfg.fast.model_dump()}
+    ref.save(out)
+    typer.echo(f"refiner written to {out} ({len(x)} candidates, {s.mean():.0%} seeds; "
+               f"loss {ref.info['loss_first_100']:.3f} -> {ref.info['loss_last_100']:.3f})")
+
+
+@train_app.command("count-calibration")
+def train_count_calibration_cmd(
+    results: List[Path] = typer.Argument(..., help="`seedmap reconstruct` results folders of panicles whose true "
+                                                   "count is known (all with the same detector and settings)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration file (.json) to write."),
+    counts: Optional[Path] = typer.Option(None, "--counts", help="CSV `result,count` of true counts (e.g. by hand; "
+                                                                 "result = folder path or name); default: the "
+                                                                 "simulator's countable seeds in each metrics.json."),
+    features: str = typer.Option("obs_fraction,seed_diam_mm", "--features",
+                                 help="Comma-separated features (obs_fraction, seed_diam_mm; empty = a constant "
+                                      "ratio only, for few panicles)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing calibration file."),
+) -> None:
+    """Fit a count calibration (seedmap.recon.calibrate) from reconstructions with known counts; use it with
+    `seedmap count RESULT --set count.calibration=FILE` or `seedmap reconstruct ... --set count.calibration=FILE`."""
+    from rich.progress import track
+
+    from seedmap.config import load_config
+    from seedmap.recon.calibrate import count_domain, fit_count_calibration, save_count_calibration
+    from seedmap.recon.config import ReconConfig
+    from seedmap.recon.pipeline import recount_calibrated
+
+    if out.exists() and not overwrite:
+        raise SeedmapError(f"{out} exists (use --overwrite to replace it)")
+    if out.suffix.lower() != ".json":
+        raise SeedmapError(f"{out}: the calibration file must end in .json")
+    names = tuple(f.strip() for f in features.split(",") if f.strip())
+    truth_by: dict[str, float] = {}
+    if counts is not None:
+        truth_by = _read_true_counts(counts)
+    feats, truth, samples, domain = [], [], [], None
+    for r in track(results, description="counting", transient=True):
+        cfg_path = r / "config.yaml"
+        if not cfg_path.is_file():
+            raise SeedmapError(f"{cfg_path}: not found (is this a `seedmap reconstruct` results folder?)")
+        cfg = load_config(ReconConfig, cfg_path, ["count.calibration=none"])
+        if cfg.count.method != "multiview":
+            raise SeedmapError(f"{r}: counted with method {cfg.count.method!r}; calibrations are for multiview")
+        dom = count_domain(cfg)
+        if domain is None:
+            domain = dom
+        elif (why := domain.mismatch(dom)) is not None:
+            raise SeedmapError(f"{r}: differs from {results[0]}, which ran with {why}")
+        if counts is not None:
+            g = truth_by.get(str(r).rstrip("/"), truth_by.get(r.name))
+            if g is None:
+                raise SeedmapError(f"{counts}: no count for {r} (rows are `result,count`)")
+        else:
+            try:
+                g = json.loads((r / "metrics.json").read_text())["gt"]["count_gt_countable"]
+            except (OSError, ValueError, KeyError, TypeError):
+                raise SeedmapError(f"{r / 'metrics.json'}: no ground-truth count (simulated scans have one; "
+                                   "for your own panicles pass --counts)") from None
+        _, cal = recount_calibrated(r, cfg)
+        feats.append(cal.features)
+        truth.append(float(g))
+        samples.append(str(r))
+    cal = fit_count_calibration(feats, truth, domain, samples, names,
+                                truth_name=f"counts in {counts}" if counts is not None
+                                else "GT countable seeds (>= 12 px in the left and right image of >= 2 views)")
+    save_count_calibration(cal, out)
+    f = cal.fit
+    typer.echo(f"count calibration written to {out} ({len(feats)} panicles): MAPE raw {f['raw_mape_pct']:.2f} % -> "
+               f"calibrated {f['calibrated_mape_pct']:.2f} % (leave-one-out {f['loo_mape_pct']:.2f} %)")
+
+
+def _read_true_counts(path: Path) -> dict[str, float]:
+    """``result,count`` rows (a header row is skipped) -> {result: count}."""
+    import csv
+
+    if not path.is_file():
+        raise SeedmapError(f"{path}: counts file not found")
+    out: dict[str, float] = {}
+    with path.open(newline="") as fh:
+        for i, row in enumerate(csv.reader(fh)):
+            if not row or not "".join(row).strip():
+                continue
+            if len(row) != 2:
+                raise SeedmapError(f"{path}: line {i + 1}: expected `result,count`, got {len(row)} fields")
+            try:
+                v = float(row[1])
+            except ValueError:
+                if i == 0:
+                    continue  # header
+                raise SeedmapError(f"{path}: line {i + 1}: count {row[1]!r} is not a number") from None
+            if not v > 0:
+                raise SeedmapError(f"{path}: line {i + 1}: count must be > 0, got {row[1]}")
+            out[row[0].strip().rstrip("/")] = v
+    if not out:
+        raise SeedmapError(f"{path}: no `result,count` rows")
+    return out
+
+
+@train_app.command("cnn-refiner")
+def train_cnn_refiner_cmd(
+    data: List[Path] = typer.Argument(..., help="Training data: simulated datasets with GT masks (e.g. data/det_s40) "
+                                                "or COCO .json files with instance masks."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for cnn_refiner.onnx (+ .safetensors) and metrics.json."),
+    images_root: Optional[Path] = typer.Option(None, "--images-root",
+                                               help="Folder of the COCO files' images (default: beside each file)."),
+    val: Optional[List[Path]] = typer.Option(None, "--val", help="Validation datasets: box F1 per threshold."),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="The fast_cnn network whose peaks it refines "
+                                                                   "(default: the shipped field network)."),
+    candidates: float = typer.Option(0.25, "--candidates", help="The network's peak threshold for candidates."),
+    patch_r: int = typer.Option(6, "--patch-r", help="Half size of the RGB patch (px)."),
+    hidden: str = typer.Option("128,64", "--hidden", help="Hidden layer widths, comma-separated."),
+    steps: int = typer.Option(30000, "--steps", help="Training steps (batch 512)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and batches."),
+    min_gt_area: Optional[float] = typer.Option(None, "--min-gt-area",
+                                                help="Visible px a GT seed needs to be a positive (default: the "
+                                                     "detectable-seed size at the image width)."),
+    thresholds: str = typer.Option("0.25,0.3,0.35,0.4,0.45", "--thresholds",
+                                   help="--val: refined-score thresholds to report."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing refiner in OUT."),
+) -> None:
+    """Train the fast CNN's learned second stage (rescoring + box residual per heatmap peak; torch on CPU).
+
+    The defaults reproduce the shipped refiner (README, seed detection)."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.detect.cnn_refine import CnnRefinerTrainConfig, train_cnn_refiner, validate
+    from seedmap.io.atomic import atomic_write_text
+
+    for d in data:
+        if not (d.is_dir() or (d.is_file() and d.suffix.lower() == ".json")):
+            raise SeedmapError(f"{d}: dataset folder or COCO .json file not found")
+    for d in val or []:
+        if not d.is_dir():
+            raise SeedmapError(f"{d}: validation dataset folder not found (--val scores simulated datasets)")
+    target = out / "cnn_refiner.safetensors"
+    if target.exists() and not overwrite:
+        raise SeedmapError(f"{target} exists (use --overwrite to replace it)")
+    try:
+        hid = tuple(int(v) for v in hidden.split(",") if v.strip())
+        ts = [float(v) for v in thresholds.split(",") if v.strip()]
+    except ValueError:
+        raise SeedmapError(f"--hidden {hidden!r} / --thresholds {thresholds!r}: comma-separated numbers expected") from None
+    cfg = CnnRefinerTrainConfig(candidates=candidates, patch_r=patch_r, hidden=hid, steps=steps, seed=seed,
+                                min_gt_area=min_gt_area)
+    # creates OUT only when the weights are written
+    onnx_path = train_cnn_refiner(list(data), target, cfg, weights, images_root=images_root)
+    metrics = {"refiner": str(onnx_path), "train": [str(d) for d in data]}
+    if val:
+        metrics["validation"] = validate(list(val), onnx_path, ts, weights)
+        for k, v in metrics["validation"]["pooled"].items():
+            typer.echo(f"validation {k}: P {v['precision']:.4f} R {v['recall']:.4f} F1 {v['f1']:.4f}")
+    atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+    typer.echo(f"cnn-refiner written to {onnx_path} (weights and config: {target})")
+
+
+@train_app.command("fast-cnn")
+def train_fast_cnn_cmd(
+    data: List[Path] = typer.Argument(..., help="Simulated training datasets with GT masks (e.g. data/det_s1)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for fast_cnn.onnx, checkpoint.safetensors, metrics."),
+    val: Optional[List[Path]] = typer.Option(None, "--val", help="Held-out datasets (default: last frame of each)."),
+    steps: int = typer.Option(5000, "--steps", help="Training steps."),
+    batch: int = typer.Option(12, "--batch", help="Crops per step."),
+    crop: int = typer.Option(96, "--crop", help="Crop size (px)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and crops."),
+    threads: int = typer.Option(1, "--threads", help="torch CPU threads."),
+    c1: int = typer.Option(8, "--c1", help="Channels at full resolution."),
+    c2: int = typer.Option(16, "--c2", help="Channels at half resolution."),
+    iou_weight: float = typer.Option(1.0, "--iou-weight", help="Weight of the box 1-GIoU loss (0 = L1 only)."),
+    scale_prob: float = typer.Option(0.5, "--scale-prob", help="Fraction of crops rescaled by 0.8-1.7x."),
+    heat_min_area: float = typer.Option(10.0, "--heat-min-area",
+                                        help="Seeds with fewer visible px are no heatmap peaks (4-px slivers "
+                                             "up to it are ignored)."),
+    box_center_weight: float = typer.Option(0.0, "--box-center-weight",
+                                            help="Box/offset loss weight of a seed pixel = 1 + this x its heat "
+                                                 "target (0 = every mask pixel alike)."),
+    arm_fraction: Optional[float] = typer.Option(None, "--arm-fraction",
+                                                 help="Fraction of the crops from arm-scan datasets (seedmap "
+                                                      "simulate panicle) when ranges are given too (default: "
+                                                      "every image alike)."),
+    init: Optional[Path] = typer.Option(None, "--init", help="Start from these fast_cnn .onnx weights "
+                                                              "(fine-tuning) instead of a random initialisation."),
+    lr: float = typer.Option(2e-3, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
+    peak_box_radius: int = typer.Option(0, "--peak-box-radius",
+                                        help="Also train the box on the (2r+1)^2 window around every seed's and "
+                                             "sliver's peak, outside its mask (0 = mask pixels only)."),
+    sliver_box_weight: float = typer.Option(0.0, "--sliver-box-weight",
+                                            help="Box/offset loss weight of a sliver pixel = 1 + this."),
+    sliver_neg_weight: float = typer.Option(0.0, "--sliver-neg-weight",
+                                            help="Heatmap background weight on slivers (0 = ignored, 1 = background)."),
+    gamma_jitter: float = typer.Option(0.0, "--gamma-jitter",
+                                       help="Photometric augmentation: gamma exp(U(-g, g)) and per-channel gain "
+                                            "U(1 - g/2, 1 + g/2) per crop (0 = off)."),
+    noise_max: float = typer.Option(0.0, "--noise-max",
+                                    help="Add Gaussian noise of sd U(0, this) grey levels per crop (0 = off)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
+) -> None:
+    """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
+
+    The defaults reproduce the shipped weights from data/det_s1 and det_s31-35, --val data/det_s36."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.detect.train_cnn import CnnTrainConfig, train_cnn
+
+    for d in list(data) + list(val or []):
+        if d.is_file() and d.suffix.lower() == ".json":  # said 'dataset folder not found' of an existing file
+            raise SeedmapError(f"{d}: fast-cnn trains on simulated datasets (GT masks); COCO labels are read by "
+                               "`seedmap train detector` and `seedmap train segmenter`")
+        if not d.is_dir():
+            raise SeedmapError(f"{d}: dataset folder not found")
+    if (out / "fast_cnn.onnx").exists() and not resume:
+        raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
+    cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
+                         iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
+                         box_center_weight=box_center_weight, arm_fraction=arm_fraction, lr=lr,
+                         init_weights=str(init) if init else None, peak_box_radius=peak_box_radius,
+                         sliver_box_weight=sliver_box_weight, sliver_neg_weight=sliver_neg_weight,
+                         gamma_jitter=gamma_jitter, noise_max=noise_max)
+    m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
+    f = m["final"] or {}
+    typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "
+               f"held-out loss {f.get('val_loss', float('nan')):.3f}, box L1 {f.get('val_box_l1_px', float('nan')):.2f} px)")
+
+
+@train_app.command("export")
+def train_export_cmd(
+    weights: Path = typer.Argument(..., help="Weights folder (detector/segmenter.safetensors) or one such file."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Folder for the .onnx files (default: beside the weights)."),
+    score_threshold: float = typer.Option(0.05, "--score-threshold", help="Detector boxes below this are dropped in the graph."),
+    nms_iou: float = typer.Option(0.3, "--nms-iou", help="NMS IoU baked into the detector graph (learned.nms_iou)."),
+    max_detections: int = typer.Option(3000, "--max-detections", help="Box cap baked into the graph (learned.max_detections)."),
+) -> None:
+    """Export trained weights to ONNX (detector.onnx, segmenter.onnx) for onnxruntime; frcnn-pix2pix then uses them."""
+    from seedmap.detect.learned import require_torch
+
+    require_torch()
+    from seedmap.detect.learned.export import export_weights
+
+    for p in export_weights(weights, out, score_threshold=score_threshold, nms_iou=nms_iou,
+                            max_detections=max_detections):
+        typer.echo(f"exported {p}")
