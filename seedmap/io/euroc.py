@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.errors import InputError
+from seedmap.io.registry import construct, register_loader
 from seedmap.io.calibration import (parse_euroc_pair, read_yaml_any, rectified_rotation,
                                     warn_implausible_baseline)
 from seedmap.io.common import LoaderWarnings, RectifiedPairs, check_timestamps
@@ -139,3 +140,6 @@ class EurocSequence(RectifiedPairs):
         T_w_s[:, :3, 3] = p
         T_w_b = T_w_s @ np.linalg.inv(T_bs_gt)
         return Trajectory(tq, T_w_b @ self.T_body_camrect())
+
+
+register_loader("euroc", EurocSequence.is_dataset, lambda p, **kw: construct(EurocSequence, p, kw), order=30)
