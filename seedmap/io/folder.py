@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.errors import InputError
-from seedmap.io.registry import construct, register_loader
 from seedmap.io.calibration import StereoRig, load_rig
 from seedmap.io.common import (LoaderWarnings, RectifiedPairs, check_timestamps, list_images, read_image_rgb,
                                read_times_txt)
+from seedmap.io.registry import construct, register_loader
 from seedmap.records import StereoCalib, Trajectory
 
 CAMERA_DIRS = (("left", "right"), ("cam0", "cam1"), ("image_left", "image_right"))
