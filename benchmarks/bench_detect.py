@@ -1,18 +1,18 @@
 """Detector speed on CPU: frames/s per detector and image size, as a ratio to cv2.GaussianBlur.
 
-Detectors: ``fast-classic`` (session 2) at full and half resolution, and the ``fast`` CNN
-(``fast-cnn``, onnxruntime) at full resolution with 1 and 2 threads, on gated tiles and whole-image,
-and per stereo frame with the left and right image in sequence or concurrently (``cnn.stereo_threads``);
-``--cnn-weights OTHER.onnx`` adds the same rows for a second network (e.g. the previous weights); repeat it to
-time several candidates against the shipped network in one run (their CPU ratios then share one baseline).
-``--cnn-set KEY=VALUE`` adds the rows for the shipped network with a detector override (e.g. ``cnn.flip_tta=true``).
+Detectors: the ``fast`` CNN (onnxruntime, with its refiner) at full resolution with 1 and 2 threads, on gated
+tiles and whole-image, and per stereo frame with the left and right image in sequence or concurrently
+(``cnn.stereo_threads``); the ``gt`` oracle with ``--dataset``; the untrained ``frcnn-pix2pix`` at half resolution.
+``--cnn-weights OTHER.onnx`` adds the same rows for another network; repeat it to time several candidates against
+the shipped network in one run (their CPU ratios then share one baseline). ``--cnn-set KEY=VALUE`` adds the rows for
+the shipped network with a detector override (e.g. ``cnn.refiner=none``).
 
 The baseline (a 5x5-sigma-2 Gaussian blur of the same RGB image) is timed in the same run, so the
 ratio ``detector_ms / blur_ms`` is comparable across machines and loads. Also times one training
 iteration of the full-width VGG16 Faster R-CNN and of pix2pix on CPU, to estimate full training time.
 
     .venv/bin/python benchmarks/bench_detect.py [--dataset data/det_s2] [--no-learned] [--repeats 10]
-        [--cnn-weights OTHER.onnx ...] [--cnn-set cnn.flip_tta=true ...] [--interleave 40]
+        [--cnn-weights OTHER.onnx ...] [--cnn-set cnn.refiner=none ...] [--interleave 40]
 
 Writes benchmarks/results/bench_detect.json.
 """
@@ -77,8 +77,8 @@ def _image(dataset: str | None, width: int, height: int) -> tuple[np.ndarray, st
 
 def _interleaved(a, cnn_sets: list) -> dict:  # noqa: ANN001 - argparse namespace
     """CPU ms per full-resolution image of each network (1 onnxruntime thread), timed round-robin: every round runs
-    each network once on the same image, so a change of the host's load hits all of them alike. Session 10: the
-    sequential rows above gave an architecture-identical network 1.22x the shipped one's CPU on a loaded host."""
+    each network once on the same image, so a change of the host's load hits all of them alike (sequential timing
+    on a loaded host can be off by 20 %)."""
     from seedmap.detect import make_detector
 
     img, src = _image(a.dataset, 1434, 1050)
@@ -90,7 +90,7 @@ def _interleaved(a, cnn_sets: list) -> dict:  # noqa: ANN001 - argparse namespac
             dets = {}
             for wl, wo in cnn_sets:
                 ov = ["cnn.threads=1"] + ([f"cnn.tile={tile}"] if tile is not None else []) + wo
-                dets[wl.strip(" []") or "shipped"] = make_detector("fast-cnn", overrides=ov)
+                dets[wl.strip(" []") or "shipped"] = make_detector("fast", overrides=ov)
             ts = {k: [] for k in dets}
             for d in dets.values():
                 d.detect(img)  # warm-up
@@ -129,20 +129,19 @@ def main() -> None:
 
     from seedmap.detect import make_detector
     from seedmap.detect.cnn import default_cnn_path
-    from seedmap.detect.config import CnnConfig, FastConfig
+    from seedmap.detect.config import CnnConfig
 
     rows = []
     cnn_sets = ([("", [])] + [(f" [{w}]", [f"cnn.weights={w}"]) for w in a.cnn_weights]
                 + [(f" [{o}]", [o]) for o in a.cnn_set])
-    for scale in (1.0, 0.5):
+    for scale in (1.0,):  # the CNN works at the pixel scale it was trained on (full resolution)
         w, h = int(round(1434 * scale)), int(round(1050 * scale))
         img, src = _image(a.dataset, w, h)
         blur_ms = _time(lambda: cv2.GaussianBlur(img, (0, 0), 2.0), a.repeats * 3)
         cpu_blur = _cpu_time_1thread(lambda: cv2.GaussianBlur(img, (0, 0), 2.0), a.repeats * 3)
-        variants = [("fast-classic", "fast-classic", [f"fast.seed_px={FastConfig().seed_px * scale}"])]
-        if scale == 1.0 and default_cnn_path().is_file():
-            # the CNN works at the pixel scale it was trained on only (full resolution)
-            variants += [(f"fast-cnn{wl} ({t} onnxruntime thread{'s' if t > 1 else ''}, {label})", "fast-cnn",
+        variants = []
+        if default_cnn_path().is_file():
+            variants += [(f"fast{wl} ({t} onnxruntime thread{'s' if t > 1 else ''}, {label})", "fast",
                           [f"cnn.threads={t}", f"cnn.tile={tile}"] + wo)
                          for wl, wo in cnn_sets
                          for t in (1, 2) for tile, label in ((CnnConfig().tile, "gated tiles"), (0, "whole image"))]
@@ -171,7 +170,7 @@ def main() -> None:
         blur_ms = _time(lambda: cv2.GaussianBlur(fr.left, (0, 0), 2.0), a.repeats * 3)
         for wl, wo in cnn_sets:
             for st in (1, 2):
-                det = make_detector("fast-cnn", overrides=[f"cnn.stereo_threads={st}"] + wo)
+                det = make_detector("fast", overrides=[f"cnn.stereo_threads={st}"] + wo)
                 ms = _time(lambda: det.detect_stereo(fr), a.repeats)
                 det.detect_stereo(fr)
                 ts = []
@@ -180,7 +179,7 @@ def main() -> None:
                     det.detect_stereo(fr)
                     ts.append(time.process_time() - t0)
                 cpu_ms = float(np.median(ts)) * 1000.0
-                rows.append({"detector": f"fast-cnn{wl} stereo frame ({'left and right concurrently, 2 threads' if st > 1 else 'left then right, 1 thread'})",
+                rows.append({"detector": f"fast{wl} stereo frame ({'left and right concurrently, 2 threads' if st > 1 else 'left then right, 1 thread'})",
                              "width": fr.left.shape[1], "height": fr.left.shape[0], "ms_per_stereo_frame": ms,
                              "ms": ms / 2, "fps": 2000.0 / ms, "cpu_ms_per_stereo_frame": cpu_ms,
                              "blur_ms": blur_ms, "ratio_vs_blur": ms / 2 / blur_ms,
@@ -211,6 +210,7 @@ def main() -> None:
             from seedmap.detect.learned.crops import extract_crops
             from seedmap.detect.learned.detector import LearnedDetector
             from seedmap.detect.learned.models import (
+                CROP_PAD,
                 DetectorArch,
                 PatchDiscriminator,
                 SegmenterArch,
@@ -233,7 +233,7 @@ def main() -> None:
                 rng = np.random.default_rng(0)
                 fake = np.c_[rng.uniform(0, w - 8, (2000, 2)), np.zeros((2000, 2))]
                 fake[:, 2:] = fake[:, :2] + 6
-                crops, _, _ = extract_crops(img, fake, sarch.crop_size, sarch.crop_pad)
+                crops, _, _ = extract_crops(img, fake, sarch.crop_size, CROP_PAD)
                 t0 = time.perf_counter()
                 ld.masks(crops)
                 t_seg = (time.perf_counter() - t0) * 1000

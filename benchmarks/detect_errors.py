@@ -18,8 +18,9 @@ the same detections filtered by score (a peak does not depend on the threshold),
     .venv/bin/python benchmarks/detect_errors.py --dataset data/det_s36 [--weights W.onnx]
         [--thresholds 0.35,0.4,0.45,0.5,0.55] [--out results/x.json]
 
-Since session 12 the shipped network runs with its refiner (``cnn.refiner=auto``; the sweep is then over the refined
-score); ``--set cnn.refiner=none`` measures the network alone, as sessions 4-11 did. Prints one line per threshold (P / R / F1 / keypoint median) and the buckets at ``--bucket-threshold``
+The shipped network runs with its refiner (``cnn.refiner=auto``; the sweep is then over the refined score);
+``--set cnn.refiner=none`` measures the network alone. Prints one line per threshold (P / R / F1 / keypoint
+median) and the buckets at ``--bucket-threshold``
 (default 0.45, the shipped one); writes everything as JSON with ``--out``.
 """
 
@@ -42,7 +43,7 @@ def detect_all(dataset: str | Path, weights: str | None, threshold: float, overr
 
     # the lowest threshold of the sweep: the network's own, or the refined score's when a refiner runs
     cfg = resolve_config(None, [f"cnn.threshold={threshold}", f"cnn.refine_threshold={threshold}", *(overrides or [])])
-    det = CnnDetector(cfg.cnn, cfg.fast, weights=weights)
+    det = CnnDetector(cfg.cnn, weights=weights)
     ds = SeedmapDataset(dataset)
     out = {}
     it = range(len(ds))

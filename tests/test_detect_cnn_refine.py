@@ -5,8 +5,8 @@ import pytest
 
 from seedmap.detect import make_detector
 from seedmap.detect.cnn import CnnDetector, default_cnn_path
-from seedmap.detect.cnn_refine import (CnnRefiner, CnnRefinerTrainConfig, default_cnn_refiner_path, file_sha256,
-                                       peak_features, peak_targets, train_cnn_refiner)
+from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path, file_sha256, peak_features
+from seedmap.detect.train_refiner import CnnRefinerTrainConfig, peak_targets, train_cnn_refiner
 from seedmap.errors import ConfigError, InputError
 from seedmap.eval.detect_metrics import frame_metrics
 from seedmap.io.seedmap_dataset import Instances
@@ -72,8 +72,8 @@ def test_shipped_refiner_raises_f1_on_an_unseen_frame(cnn_range):
     network at its own threshold, keypoints unchanged (the refiner moves boxes and scores, not keypoints)."""
     assert default_cnn_refiner_path().is_file() and default_cnn_refiner_path().stat().st_size < 2e6
     img, inst = cnn_range[2].left, cnn_range.gt_instances(2, "left")
-    plain = make_detector("fast-cnn", overrides=["cnn.refiner=none"]).detect(img)
-    det = make_detector("fast-cnn", overrides=["cnn.refiner=auto"])
+    plain = make_detector("fast", overrides=["cnn.refiner=none"]).detect(img)
+    det = make_detector("fast", overrides=["cnn.refiner=auto"])
     assert det.refiner is not None and det.threshold == det.cfg.refine_threshold
     ref = det.detect(img)
     mp, _ = frame_metrics(plain, inst, min_gt_area=10)
@@ -81,21 +81,21 @@ def test_shipped_refiner_raises_f1_on_an_unseen_frame(cnn_range):
     assert mr.f1 > mp.f1 + 0.02 and mr.precision > mp.precision, (mp, mr)
     assert np.median(err) < 0.5 and ref.scores.min() >= det.threshold - 1e-6
     # the refiner belongs to the shipped field network: auto leaves other networks alone ...
-    assert make_detector("fast-cnn", overrides=["cnn.refiner=auto", "cnn.domain=arm"]).refiner is None
+    assert make_detector("fast", overrides=["cnn.refiner=auto", "cnn.domain=arm"]).refiner is None
     # ... and an explicit refiner on another network is refused, naming the file
     with pytest.raises(ConfigError, match="fast_cnn_refiner.onnx"):
-        make_detector("fast-cnn", overrides=["cnn.domain=arm", f"cnn.refiner={default_cnn_refiner_path()}"])
+        make_detector("fast", overrides=["cnn.domain=arm", f"cnn.refiner={default_cnn_refiner_path()}"])
 
 
 def test_bad_refiner_files_are_named(tmp_path):
     bad = tmp_path / "r.onnx"
     bad.write_bytes(b"no onnx")
     with pytest.raises(InputError, match="r.onnx"):
-        make_detector("fast-cnn", overrides=[f"cnn.refiner={bad}"])
+        make_detector("fast", overrides=[f"cnn.refiner={bad}"])
     with pytest.raises(InputError, match="expected cnn_refiner"):  # a fast_cnn network is no refiner
         CnnRefiner.load(default_cnn_path())
     with pytest.raises(InputError, match="not found"):
-        make_detector("fast-cnn", overrides=[f"cnn.refiner={tmp_path / 'none.safetensors'}"])
+        make_detector("fast", overrides=[f"cnn.refiner={tmp_path / 'none.safetensors'}"])
 
 
 def test_training_a_refiner_on_a_small_range_learns(cnn_range, tmp_path):
@@ -112,7 +112,7 @@ def test_training_a_refiner_on_a_small_range_learns(cnn_range, tmp_path):
     assert info["cnn_sha256"] == file_sha256(default_cnn_path()) and info["loss_last_100"] < info["loss_first_100"]
     x = np.random.default_rng(1).random((50, 3 * 49 + 15)).astype(np.float32)
     np.testing.assert_allclose(a.forward(x), b.forward(x), atol=1e-4)
-    det = make_detector("fast-cnn", overrides=[f"cnn.refiner={onnx_path}"])
+    det = make_detector("fast", overrides=[f"cnn.refiner={onnx_path}"])
     assert isinstance(det, CnnDetector) and det.refiner is not None
     img, inst = cnn_range[4].right, cnn_range.gt_instances(4, "right")
     m, _ = frame_metrics(det.detect(img), inst, min_gt_area=10)
@@ -152,7 +152,7 @@ def test_refiner_training_data_from_coco_masks_matches_the_simulated_gt(cnn_rang
 
     from test_cli_coco_labels import _export_coco  # tests/ is on sys.path
 
-    from seedmap.detect.cnn_refine import training_data
+    from seedmap.detect.train_refiner import training_data
     from seedmap.detect.config import CnnConfig, min_visible_seed_px
 
     coco, _ = _export_coco(cnn_range.root, frames=(0, 1), min_area=1)
@@ -176,11 +176,11 @@ def test_refiner_training_data_from_coco_masks_matches_the_simulated_gt(cnn_rang
 
 
 def test_concurrent_stereo_detection_equals_sequential(cnn_range):
-    """``cnn.stereo_threads=2`` (the default) runs left and right at once on shared onnxruntime sessions (network and
-    refiner): the same detections as one after the other."""
+    """``cnn.stereo_threads=2`` (the default) runs left and right at once on shared onnxruntime InferenceSessions (network
+    and refiner): the same detections as one after the other."""
     fr = cnn_range[3]
-    a = make_detector("fast-cnn", overrides=["cnn.stereo_threads=1"]).detect_stereo(fr)
-    det = make_detector("fast-cnn")
+    a = make_detector("fast", overrides=["cnn.stereo_threads=1"]).detect_stereo(fr)
+    det = make_detector("fast")
     assert det.cfg.stereo_threads == 2 and det.refiner is not None
     for _ in range(3):
         b = det.detect_stereo(fr)

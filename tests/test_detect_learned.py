@@ -42,10 +42,10 @@ def data(tmp_path_factory):
 def trained(data, tmp_path_factory):
     out = tmp_path_factory.mktemp("weights")
     src = SeedmapSource(data)
-    train_segmenter(src, out, SegmenterTrainConfig(steps=10, batch_size=16, val_every=5, checkpoint_every=5,
-                                                   log_every=1, val_crops=32, arch=TINY_SEG), progress=False)
-    train_detector(src, out, DetectorTrainConfig(steps=2, batch_size=1, crop=64, val_every=2, checkpoint_every=1,
-                                                 log_every=1, val_crops=1, arch=TINY_DET), progress=False)
+    train_segmenter(src, out, SegmenterTrainConfig(steps=10, batch_size=16, checkpoint_every=5,
+                                                   log_every=1, arch=TINY_SEG), progress=False)
+    train_detector(src, out, DetectorTrainConfig(steps=2, batch_size=1, crop=64, checkpoint_every=1,
+                                                 log_every=1, arch=TINY_DET), progress=False)
     return out
 
 
@@ -101,8 +101,7 @@ def test_resume_continues_from_checkpoint(data, trained, tmp_path):
 
     for f in trained.iterdir():
         shutil.copy(f, tmp_path / f.name)
-    cfg = DetectorTrainConfig(steps=3, batch_size=1, crop=64, val_every=100, checkpoint_every=1, log_every=1,
-                              val_crops=0, arch=TINY_DET)
+    cfg = DetectorTrainConfig(steps=3, batch_size=1, crop=64, checkpoint_every=1, log_every=1, arch=TINY_DET)
     with pytest.raises(InputError, match="--resume"):
         train_detector(SeedmapSource(data), tmp_path, cfg, progress=False)
     train_detector(SeedmapSource(data), tmp_path, cfg, resume=True, progress=False)
@@ -158,7 +157,7 @@ def test_without_torch_clear_error():
         "from seedmap.errors import SeedmapError\n"
         "import numpy as np\n"
         "det = d.make_detector('fast')\n"
-        "assert det.name == 'fast-cnn' and len(det.detect(np.zeros((96, 96, 3), np.uint8))) == 0\n"
+        "assert det.name == 'fast' and len(det.detect(np.zeros((96, 96, 3), np.uint8))) == 0\n"
         "try:\n    d.make_detector('frcnn-pix2pix')\nexcept SeedmapError as e:\n    print(e)\n"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)

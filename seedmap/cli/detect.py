@@ -16,11 +16,11 @@ def detect_cmd(
     dataset: Path = typer.Argument(..., help="Dataset folder (seedmap layout or any supported format)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist unless --overwrite)."),
     detector: Optional[str] = typer.Option(None, "--detector", "-d",
-                                           help="gt (ORACLE, simulated data) | fast (CNN if shipped) | fast-classic | "
-                                                "fast-cnn | frcnn-pix2pix | default (the --config's detector, else "
+                                           help="gt (ORACLE, simulated data) | fast (CNN + refiner) | "
+                                                "frcnn-pix2pix | default (the --config's detector, else "
                                                 "default = the best available)."),
     weights: Optional[Path] = typer.Option(None, "--weights",
-                                           help="Weights: .safetensors of frcnn-pix2pix, .onnx of fast-cnn."),
+                                           help="Weights: .safetensors of frcnn-pix2pix, .onnx of fast."),
     overlay: bool = typer.Option(False, "--overlay", help="Also write PNGs with the fitted ellipses drawn."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output folder."),
     config: Optional[Path] = ConfigOpt,
@@ -42,8 +42,8 @@ def detect_cmd(
         from seedmap.detect import default_detector_name
 
         name = default_detector_name() if detector in ("default", "auto") else detector
-        if name not in ("fast-cnn", "frcnn-pix2pix"):
-            raise SeedmapError(f"--weights is read by --detector fast-cnn (.onnx) and frcnn-pix2pix only; "
-                               f"{name!r} would ignore {weights} (use --detector fast-cnn --weights FILE)")
+        if name not in ("fast", "frcnn-pix2pix"):
+            raise SeedmapError(f"--weights is read by --detector fast (.onnx) and frcnn-pix2pix only; "
+                               f"{name!r} would ignore {weights} (use --detector fast --weights FILE)")
     p = run_detect(dataset, out, detector, weights, cfg, overlay=overlay, overwrite=overwrite)
     typer.echo(f"detections written to {p}")

@@ -60,35 +60,6 @@ def train_segmenter_cmd(
     _train_common("segmenter", data, out, val, images_root, config, set_, resume, overwrite)
 
 
-@train_app.command("fast-refiner")
-def train_fast_refiner_cmd(
-    data: Path = typer.Argument(..., help="Simulated dataset folder with GT masks (e.g. data/det_s1)."),
-    out: Path = typer.Option(..., "--out", "-o", help="Refiner weights file (.safetensors) to write."),
-    steps: int = typer.Option(3000, "--steps", help="Training steps (batch 512)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and batches."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing weights file."),
-    config: Optional[Path] = ConfigOpt,
-    set_: Optional[List[str]] = SetOpt,
-) -> None:
-    """Train the fast detector's learned second stage (seed score + box per candidate; torch on CPU, ~1 min)."""
-    from seedmap.detect.learned import require_torch
-
-    require_torch()
-    from seedmap.config import load_config
-    from seedmap.detect.config import DetectConfig
-    from seedmap.detect.refine import train_refiner, training_samples
-
-    if out.exists() and not overwrite:
-        raise SeedmapError(f"{out} exists (use --overwrite to replace it)")
-    cfg = load_config(DetectConfig, config, set_ or [])
-    x, y, s = training_samples(data, None, cfg.fast, progress=True)
-    ref = train_refiner(x, y, s, steps=steps, seed=seed)
-    ref.info = {**(ref.info or {}), "data": str(data), "fast_config": cfg.fast.model_dump()}
-    ref.save(out)
-    typer.echo(f"refiner written to {out} ({len(x)} candidates, {s.mean():.0%} seeds; "
-               f"loss {ref.info['loss_first_100']:.3f} -> {ref.info['loss_last_100']:.3f})")
-
-
 @train_app.command("count-calibration")
 def train_count_calibration_cmd(
     results: List[Path] = typer.Argument(..., help="`seedmap reconstruct` results folders of panicles whose true "
@@ -210,7 +181,7 @@ def train_cnn_refiner_cmd(
     from seedmap.detect.learned import require_torch
 
     require_torch()
-    from seedmap.detect.cnn_refine import CnnRefinerTrainConfig, train_cnn_refiner, validate
+    from seedmap.detect.train_refiner import CnnRefinerTrainConfig, train_cnn_refiner, validate
     from seedmap.io.atomic import atomic_write_text
 
     for d in data:
@@ -257,9 +228,6 @@ def train_fast_cnn_cmd(
     heat_min_area: float = typer.Option(10.0, "--heat-min-area",
                                         help="Seeds with fewer visible px are no heatmap peaks (4-px slivers "
                                              "up to it are ignored)."),
-    box_center_weight: float = typer.Option(0.0, "--box-center-weight",
-                                            help="Box/offset loss weight of a seed pixel = 1 + this x its heat "
-                                                 "target (0 = every mask pixel alike)."),
     arm_fraction: Optional[float] = typer.Option(None, "--arm-fraction",
                                                  help="Fraction of the crops from arm-scan datasets (seedmap "
                                                       "simulate panicle) when ranges are given too (default: "
@@ -267,18 +235,6 @@ def train_fast_cnn_cmd(
     init: Optional[Path] = typer.Option(None, "--init", help="Start from these fast_cnn .onnx weights "
                                                               "(fine-tuning) instead of a random initialisation."),
     lr: float = typer.Option(2e-3, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
-    peak_box_radius: int = typer.Option(0, "--peak-box-radius",
-                                        help="Also train the box on the (2r+1)^2 window around every seed's and "
-                                             "sliver's peak, outside its mask (0 = mask pixels only)."),
-    sliver_box_weight: float = typer.Option(0.0, "--sliver-box-weight",
-                                            help="Box/offset loss weight of a sliver pixel = 1 + this."),
-    sliver_neg_weight: float = typer.Option(0.0, "--sliver-neg-weight",
-                                            help="Heatmap background weight on slivers (0 = ignored, 1 = background)."),
-    gamma_jitter: float = typer.Option(0.0, "--gamma-jitter",
-                                       help="Photometric augmentation: gamma exp(U(-g, g)) and per-channel gain "
-                                            "U(1 - g/2, 1 + g/2) per crop (0 = off)."),
-    noise_max: float = typer.Option(0.0, "--noise-max",
-                                    help="Add Gaussian noise of sd U(0, this) grey levels per crop (0 = off)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
@@ -299,10 +255,8 @@ def train_fast_cnn_cmd(
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
                          iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
-                         box_center_weight=box_center_weight, arm_fraction=arm_fraction, lr=lr,
-                         init_weights=str(init) if init else None, peak_box_radius=peak_box_radius,
-                         sliver_box_weight=sliver_box_weight, sliver_neg_weight=sliver_neg_weight,
-                         gamma_jitter=gamma_jitter, noise_max=noise_max)
+                         arm_fraction=arm_fraction, lr=lr,
+                         init_weights=str(init) if init else None)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "

@@ -1,7 +1,7 @@
 """Seed detection front-end: one :class:`Detector` interface, several detectors by name.
 
 * ``gt`` — ORACLE reading a simulated dataset's ground-truth masks (:class:`GtDetector`).
-* ``fast`` — classical OpenCV detector, real-time on CPU (:mod:`seedmap.detect.fast`).
+* ``fast`` — small CNN on gated tiles + learned refiner, onnxruntime on CPU (:mod:`seedmap.detect.cnn`; the default).
 * ``frcnn-pix2pix`` — the paper's Faster R-CNN (VGG16) + pix2pix pipeline; needs the optional
   ``seedmap[learned]`` extra (torch), imported only when asked for.
 
@@ -19,14 +19,14 @@ from seedmap.detect.base import (
 )
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses, fit_ellipse_mask, fit_ellipses_labels
-from seedmap.detect.fast import FastDetector
+from seedmap.detect.cnn import CnnDetector
 from seedmap.detect.gt import GtDetector
 from seedmap.detect import learned as _learned  # noqa: F401  (registers frcnn-pix2pix; no torch import)
 
 __all__ = [
+    "CnnDetector",
     "DetectConfig",
     "Detector",
-    "FastDetector",
     "GtDetector",
     "available_detectors",
     "default_detector_name",

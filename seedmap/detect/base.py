@@ -3,8 +3,9 @@
 A detector turns one RGB ``uint8`` image into :class:`~seedmap.records.Detections` (boxes, scores,
 ellipses, keypoints = ellipse centres) and a stereo frame into
 :class:`~seedmap.records.StereoDetections` via :meth:`Detector.detect_stereo`. Downstream code
-(association, SLAM, reconstruction) only ever calls these two methods, so the oracle, the fast
-classical detector and the learned Faster R-CNN + pix2pix pipeline are interchangeable.
+(association, SLAM, reconstruction) only ever calls these two methods, so the oracle, the fast CNN
+and the learned Faster R-CNN + pix2pix pipeline are interchangeable. Detectors register a factory by name
+(:func:`register_detector`); :func:`make_detector` builds one by name.
 
 The ``gt`` oracle reads ground truth instead of pixels, so it needs the dataset and the frame
 index; it implements :meth:`detect_stereo` from ``frame.index`` and :meth:`GtDetector.detect_frame`.
@@ -72,67 +73,13 @@ def map_to_input(boxes: np.ndarray, ellipses: np.ndarray, sx: float, sy: float,
     return boxes / np.array([sx, sy, sx, sy]), ell
 
 
-def exposure_gain(image: np.ndarray, ref_p99: float, tolerance: float, max_gain: float) -> float:
-    """Brightness gain for ``image`` (RGB uint8): 1 when its 99th grey percentile is within a factor
-    ``tolerance`` of ``ref_p99``, else ``ref_p99 / p99`` clipped to ``[1 / max_gain, max_gain]``."""
-    import cv2
-
-    grey = cv2.cvtColor(np.ascontiguousarray(image[::2, ::2]), cv2.COLOR_RGB2GRAY)  # every 2nd pixel suffices
-    p99 = max(float(np.percentile(grey, 99)), 1.0)
-    gain = ref_p99 / p99
-    if 1.0 / tolerance <= gain <= tolerance:
-        return 1.0
-    return float(np.clip(gain, 1.0 / max_gain, max_gain))
-
-
-def apply_gain(image: np.ndarray, gain: float) -> np.ndarray:
-    """``image`` scaled by ``gain`` (uint8, saturating); the same array when ``gain`` is 1."""
-    if gain == 1.0:
-        return image
-    import cv2
-
-    return cv2.convertScaleAbs(image, alpha=gain)
-
-
-class ExposureNormalised(Detector):
-    """Wraps an image-based detector: each image is brought to the reference exposure first
-    (:class:`seedmap.detect.config.ExposureConfig`); everything else is the wrapped detector's."""
-
-    def __init__(self, inner: Detector, cfg) -> None:
-        self.inner = inner
-        self.cfg = cfg
-
-    @property
-    def name(self) -> str:  # type: ignore[override]
-        return self.inner.name
-
-    @property
-    def is_oracle(self) -> bool:  # type: ignore[override]
-        return self.inner.is_oracle
-
-    def __getattr__(self, item: str):  # config, sessions ... of the wrapped detector
-        return getattr(self.__dict__["inner"], item)
-
-    def _norm(self, image: np.ndarray) -> np.ndarray:
-        a = check_image(image)
-        c = self.cfg
-        return apply_gain(a, exposure_gain(a, c.ref_p99, c.tolerance, c.max_gain))
-
-    def detect(self, image: np.ndarray) -> Detections:
-        return self.inner.detect(self._norm(image))
-
-    def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
-        from dataclasses import replace
-
-        return self.inner.detect_stereo(replace(frame, left=self._norm(frame.left), right=self._norm(frame.right)))
-
-
 # name -> factory(**kwargs) -> Detector ; factories import their heavy modules lazily
 _REGISTRY: dict[str, Callable[..., Detector]] = {}
 _HELP: dict[str, str] = {}
 
 
 def register_detector(name: str, factory: Callable[..., Detector], help: str = "") -> None:
+    """Make ``factory(dataset=, weights=, config=)`` available as detector ``name`` (``help``: one line)."""
     _REGISTRY[name] = factory
     _HELP[name] = help
 
@@ -143,6 +90,7 @@ def available_detectors() -> list[str]:
 
 
 def detector_help() -> dict[str, str]:
+    """One line of help per registered detector name."""
     return dict(_HELP)
 
 
@@ -180,7 +128,4 @@ def make_detector(name: str, *, dataset: str | Path | object | None = None, weig
     if name not in _REGISTRY:
         raise SeedmapError(f"unknown detector {name!r} (known: {', '.join(available_detectors())})")
     cfg = resolve_config(config if isinstance(config, DetectConfig) else None, overrides)
-    det = _REGISTRY[name](dataset=dataset, weights=weights, config=cfg)
-    if cfg.exposure.enabled and not det.is_oracle:
-        det = ExposureNormalised(det, cfg.exposure)
-    return det
+    return _REGISTRY[name](dataset=dataset, weights=weights, config=cfg)

@@ -67,8 +67,6 @@ class GtDetector(Detector):
         if len(inst) == 0:
             return Detections()
         keep = inst.area >= self.min_area_px(camera, i)
-        if self.cfg.only_center_visible:
-            keep &= inst.center_visible
         labels = self.dataset.gt_label_image(i, camera)
         ids = inst.label[keep].astype(np.int64)
         boxes = inst.boxes[keep].astype(np.float64)

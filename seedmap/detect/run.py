@@ -21,12 +21,12 @@ class DetectRunConfig(DetectConfig):
     """What ``seedmap detect`` writes as a result's ``config.yaml``: the detector settings plus which detector
     and weights ran, so that ``seedmap detect DATA --config RESULT/config.yaml`` repeats the run (the
     ``--detector`` / ``--weights`` options override them). A plain :class:`DetectConfig` file (no ``detector``
-    key, as written before session 9, or a SLAM config's ``detect`` section) still loads: None means the
-    options' defaults (the best available detector, its shipped weights)."""
+    key, e.g. a SLAM config's ``detect`` section) loads too: None means the options' defaults (the best
+    available detector, its shipped weights)."""
 
-    #: registry name (gt | fast | fast-classic | fast-cnn | frcnn-pix2pix); ``default`` is resolved when written
+    #: registry name (gt | fast | frcnn-pix2pix); ``default`` is resolved when written
     detector: str | None = None
-    #: weights file read by fast-cnn (.onnx) or frcnn-pix2pix (.safetensors); None = the shipped ones
+    #: weights file read by fast (.onnx) or frcnn-pix2pix (.safetensors); None = the shipped ones
     weights: str | None = None
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Iterator
 
 from seedmap.errors import InputError
+from seedmap.io.registry import detect_format
 
 
 def _umask() -> int:
@@ -62,8 +63,6 @@ def refuse_replacing_data(out: Path) -> None:
     the results in its place. A folder any loader recognises is refused, except a simulated seedmap dataset
     (``gt/config.yaml``), which ``seedmap simulate ... --overwrite`` re-renders.
     """
-    from seedmap.io import detect_format
-
     def recorded(p: Path) -> str | None:
         fmt = detect_format(p)
         return None if fmt == "seedmap" and (p / "gt" / "config.yaml").is_file() else fmt

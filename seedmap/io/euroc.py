@@ -19,8 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.errors import InputError
+from seedmap.io.calib_formats import _arr
 from seedmap.io.calibration import (parse_euroc_pair, read_yaml_any, rectified_rotation,
                                     warn_implausible_baseline)
+from seedmap.io.registry import construct, register_loader
 from seedmap.io.common import LoaderWarnings, RectifiedPairs, check_timestamps
 from seedmap.io.sync import match_stamps
 from seedmap.records import Trajectory
@@ -124,8 +126,6 @@ class EurocSequence(RectifiedPairs):
         check_timestamps(t, csv)
         T_bs_gt = np.eye(4)
         if (gt_dir / "sensor.yaml").is_file():
-            from seedmap.io.calibration import _arr
-
             T_bs_gt = _arr(read_yaml_any(gt_dir / "sensor.yaml"), "T_BS", (4, 4), gt_dir / "sensor.yaml")
         rot = Rotation.from_quat(a[:, [5, 6, 7, 4]])  # EuRoC stores w x y z
         inside = (self.timestamps >= t[0]) & (self.timestamps <= t[-1])
@@ -139,3 +139,6 @@ class EurocSequence(RectifiedPairs):
         T_w_s[:, :3, 3] = p
         T_w_b = T_w_s @ np.linalg.inv(T_bs_gt)
         return Trajectory(tq, T_w_b @ self.T_body_camrect())
+
+
+register_loader("euroc", EurocSequence.is_dataset, lambda p, **kw: construct(EurocSequence, p, kw), order=30)

@@ -23,6 +23,7 @@ from seedmap.errors import InputError
 from seedmap.io.calibration import StereoRig, load_rig
 from seedmap.io.common import (LoaderWarnings, RectifiedPairs, check_timestamps, list_images, read_image_rgb,
                                read_times_txt)
+from seedmap.io.registry import construct, register_loader
 from seedmap.records import StereoCalib, Trajectory
 
 CAMERA_DIRS = (("left", "right"), ("cam0", "cam1"), ("image_left", "image_right"))
@@ -124,3 +125,6 @@ class StereoFolder(RectifiedPairs):
             if p.is_file():
                 return read_tum(p)
         return None
+
+
+register_loader("folder", StereoFolder.is_dataset, lambda p, **kw: construct(StereoFolder, p, kw), order=50)

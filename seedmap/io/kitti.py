@@ -16,6 +16,7 @@ import numpy as np
 from seedmap.errors import InputError
 from seedmap.io.calibration import kitti_cam_offset, parse_kitti_calib
 from seedmap.io.common import LoaderWarnings, RectifiedPairs, list_images, read_image_rgb, read_times_txt
+from seedmap.io.registry import construct, register_loader
 from seedmap.io.trajectory import read_kitti
 from seedmap.records import Trajectory
 
@@ -78,3 +79,6 @@ class KittiSequence(RectifiedPairs):
             raise InputError(f"has {len(traj)} poses but the sequence has {len(self)} frames", self.poses_path)
         T_c0_cl = kitti_cam_offset(self.calib_path, self.cams[0])
         return Trajectory(self.timestamps.copy(), traj.poses @ T_c0_cl)
+
+
+register_loader("kitti", KittiSequence.is_dataset, lambda p, **kw: construct(KittiSequence, p, kw), order=40)

@@ -8,29 +8,31 @@ from pydantic import Field
 
 from seedmap.config import ConfigModel
 from seedmap.errors import ConfigError
+from seedmap.io.registry import loader_names, open_dataset
 
 
 class DatasetOptions(ConfigModel):
-    """Loader options; ``None`` means "the loader's default". Only options the chosen format has may be set.
+    """Loader options; ``None`` means "the loader's default". Only options the chosen format has may be set."""
 
-    ``format``: seedmap | rosbag | euroc | kitti | folder (``None``: detect from the path).
-    ``calib``/``right_calib``: calibration file(s) overriding what the dataset carries (folder, rosbag).
-    ``fps``: frame rate used when a folder/KITTI sequence has no timestamps (Hz).
-    ``sync_tol_s``: stereo time-sync tolerance (s) for bags and EuRoC.
-    ``left_topic``/``right_topic``/``rectified``: bag image topics and whether they are already rectified.
-    ``rectify_alpha``: OpenCV free scaling for rectification (0 = valid pixels only, 1 = all pixels).
-    ``poses``: ground-truth pose file for KITTI.
-    """
-
+    #: seedmap | rosbag | euroc | kitti | folder (None: detected from the path)
     format: str | None = None
+    #: calibration file overriding what the dataset carries (folder, rosbag)
     calib: str | None = None
+    #: the right camera's calibration file, when it is a separate file
     right_calib: str | None = None
+    #: frame rate (Hz) used when a folder / KITTI sequence has no timestamps
     fps: float | None = Field(None, gt=0)
+    #: stereo time-sync tolerance (s) for bags and EuRoC
     sync_tol_s: float | None = Field(None, ge=0)
+    #: bag image topic of the left camera
     left_topic: str | None = None
+    #: bag image topic of the right camera
     right_topic: str | None = None
+    #: whether the bag's images are already rectified
     rectified: bool | None = None
+    #: OpenCV free scaling of the rectification (0 = valid pixels only, 1 = all pixels)
     rectify_alpha: float | None = None
+    #: ground-truth pose file for KITTI
     poses: str | None = None
 
     def loader_kwargs(self) -> dict:
@@ -38,8 +40,6 @@ class DatasetOptions(ConfigModel):
 
     def open(self, path: str | Path):
         """Open ``path`` with these options (see :func:`seedmap.io.open_dataset`)."""
-        from seedmap.io import loader_names, open_dataset
-
         if self.format is not None and self.format not in loader_names():
             raise ConfigError(f"unknown dataset format {self.format!r} (known: {', '.join(loader_names())})")
         return open_dataset(path, self.format, **self.loader_kwargs())

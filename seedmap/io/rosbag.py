@@ -29,6 +29,7 @@ from seedmap.errors import InputError
 from seedmap.io.calibration import StereoRig, _calib_from_P, _rig_from_rect, check_image_size, \
     load_rig, rectify, warn_implausible_baseline
 from seedmap.io.common import LoaderWarnings, decode_image_bytes, to_rgb
+from seedmap.io.registry import construct, register_loader
 from seedmap.io.sync import match_stamps
 from seedmap.records import StereoFrame, Trajectory
 
@@ -445,3 +446,6 @@ class RosbagSequence:
 
     def __del__(self) -> None:
         self.close()
+
+
+register_loader("rosbag", is_bag, lambda p, **kw: construct(RosbagSequence, p, kw), order=20)

@@ -32,9 +32,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from seedmap.errors import InputError
+from seedmap.errors import ConfigError, InputError
 from seedmap.io.atomic import atomic_write_text
 from seedmap.io.images import read_label_png, read_rgb, write_png
+from seedmap.io.registry import detect_format, register_loader
 from seedmap.io.trajectory import read_tum, write_tum
 from seedmap.records import StereoCalib, StereoFrame, Trajectory
 
@@ -197,8 +198,6 @@ class SeedmapDataset:
     def __init__(self, root: str | Path) -> None:
         self.root = Path(root)
         if self.root.exists() and not (self.root / "calib.yaml").is_file():
-            from seedmap.io import detect_format
-
             fmt = detect_format(self.root)
             if fmt not in (None, "seedmap"):  # real data given where simulated data with GT is needed
                 raise InputError(f"this is a {fmt} dataset; this needs seedmap's own layout (calib.yaml, times.txt, "
@@ -318,3 +317,18 @@ class SeedmapDataset:
     def gt_config_text(self) -> str | None:
         p = self.root / "gt" / "config.yaml"
         return p.read_text() if p.is_file() else None
+
+
+def _is_seedmap(p: Path) -> bool:
+    # a generic folder with calib.yaml + times.txt but other file names is left to the folder loader
+    return SeedmapDataset.is_dataset(p) and (
+        (p / "left" / frame_name(0)).is_file() or not any((p / "left").iterdir()))
+
+
+def _open_seedmap(p: Path, **kw) -> SeedmapDataset:
+    if kw:
+        raise ConfigError(f"the seedmap dataset format takes no options (got {', '.join(sorted(kw))})", p)
+    return SeedmapDataset(p)
+
+
+register_loader("seedmap", _is_seedmap, _open_seedmap, order=10)

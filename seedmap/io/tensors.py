@@ -1,6 +1,6 @@
 """Reading safetensors weight files into numpy, with the project's one-line errors.
 
-One reader for every numpy-side weights file (the `fast` refiner, the `fast-cnn` training checkpoint):
+One reader for every numpy-side weights file (the `fast` CNN refiner, the `fast` CNN training checkpoint):
 a file that is missing, truncated or not safetensors raises :class:`~seedmap.errors.InputError` naming
 the file, never a library traceback. Which kind of weights a file holds is the caller's check (the
 ``seedmap_kind`` metadata entry), because each caller words its own expectation.

@@ -2,7 +2,7 @@
 
 Weights: ``detector.safetensors`` and ``segmenter.safetensors`` (as written by ``seedmap train``).
 ``--weights`` may name either file or their folder; the other file is looked up beside it. When a
-``segmenter.onnx`` sits next to the segmenter weights (and ``learned.use_onnx``), the segmenter runs
+``segmenter.onnx`` sits next to the segmenter weights, the segmenter runs
 in onnxruntime; likewise the detector when a ``detector.onnx`` (``seedmap train export``) sits next to
 the detector weights and its baked-in post-processing (score threshold, NMS IoU, box cap) fits the config. A mask that comes out empty falls back to the box's inscribed ellipse (its centre is
 the box centre), so the detection is kept.
@@ -21,6 +21,7 @@ from seedmap.detect.config import LearnedConfig
 from seedmap.detect.ellipse import fit_ellipse_mask
 from seedmap.detect.learned.crops import crop_to_full, extract_crops
 from seedmap.detect.learned.models import (
+    CROP_PAD,
     DetectorArch,
     SegmenterArch,
     UNetGenerator,
@@ -30,6 +31,9 @@ from seedmap.detect.learned.models import (
 from seedmap.detect.learned.weights import load_into, read_weights
 from seedmap.errors import InputError, SeedmapError
 from seedmap.records import Detections
+
+#: the ellipse fitter of a mask (cv2.fitEllipse on its contour, the paper's)
+ELLIPSE = "contour"
 
 
 def find_weight_files(weights: str | Path | None) -> tuple[Path, Path]:
@@ -69,14 +73,14 @@ class LearnedDetector(Detector):
         self.det.roi_heads.nms_thresh = self.cfg.nms_iou
         self.det.roi_heads.detections_per_img = self.cfg.max_detections
         self.ort = None
-        if onnx_path is not None and self.cfg.use_onnx and onnx_path.is_file():
+        if onnx_path is not None and onnx_path.is_file():
             import onnxruntime as ort
 
             so = ort.SessionOptions()
             so.intra_op_num_threads = max(1, torch.get_num_threads())
             self.ort = ort.InferenceSession(str(onnx_path), so, providers=["CPUExecutionProvider"])
         self.ort_det = None
-        if det_onnx_path is not None and self.cfg.use_onnx and det_onnx_path.is_file():
+        if det_onnx_path is not None and det_onnx_path.is_file():
             from seedmap.detect.learned.export import onnx_post_params
 
             post = onnx_post_params(det_onnx_path)
@@ -138,11 +142,11 @@ class LearnedDetector(Detector):
         if len(boxes) == 0:
             return Detections()
         n = self.seg_arch.crop_size
-        crops, wins, _ = extract_crops(image, boxes, n, self.seg_arch.crop_pad)
+        crops, wins, _ = extract_crops(image, boxes, n, CROP_PAD)
         masks = self.masks(crops)
         ell = np.zeros((len(boxes), 5))
         for k in range(len(boxes)):
-            e = fit_ellipse_mask(masks[k], self.cfg.ellipse)
+            e = fit_ellipse_mask(masks[k], ELLIPSE)
             if e is None:
                 b = boxes[k]
                 ell[k] = [(b[0] + b[2]) / 2 - 0.5, (b[1] + b[3]) / 2 - 0.5, b[2] - b[0], b[3] - b[1], 0.0]

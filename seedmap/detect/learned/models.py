@@ -24,27 +24,40 @@ from seedmap.config import ConfigModel
 VGG16_CFG: list = [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512]  # up to conv4_3 (stride 8)
 
 
+#: anchor aspect ratios of the region proposals
+ASPECT_RATIOS = (0.5, 1.0, 2.0)
+#: RoIAlign output size
+ROI_OUTPUT = 7
+#: segmenter crop padding on each side, as a fraction of the box's larger side
+CROP_PAD = 0.5
+
+
 class DetectorArch(ConfigModel):
     """Architecture of the Faster R-CNN detector (saved with the weights)."""
 
+    #: scales every VGG16 channel count (1.0 = torchvision's vgg16)
     width: float = 1.0
+    #: anchor sizes (px on the upscaled image)
     anchor_sizes: list[float] = [8.0, 12.0, 16.0, 24.0]
-    aspect_ratios: list[float] = [0.5, 1.0, 2.0]
+    #: the detector sees the image upscaled by this factor
     upscale: float = 2.0
-    roi_output: int = 7
+    #: hidden width of the box head
     representation: int = 1024
+    #: region proposals kept after NMS at inference
     rpn_post_nms_test: int = 4000
+    #: at most this many detections per image
     max_detections: int = 3000
 
 
 class SegmenterArch(ConfigModel):
     """Architecture of the pix2pix segmenter (saved with the weights)."""
 
+    #: side (px) of the square box crops
     crop_size: int = 32
+    #: U-Net generator base width
     ngf: int = 32
+    #: PatchGAN discriminator base width
     ndf: int = 32
-    #: box padding on each side, as a fraction of the box's larger side
-    crop_pad: float = 0.5
 
 
 def vgg16_stride8(width: float = 1.0) -> nn.Sequential:
@@ -67,11 +80,11 @@ def build_frcnn(arch: DetectorArch) -> nn.Module:
 
     backbone = vgg16_stride8(arch.width)
     backbone.out_channels = [m for m in backbone if isinstance(m, nn.Conv2d)][-1].out_channels
-    anchors = AnchorGenerator(sizes=(tuple(arch.anchor_sizes),), aspect_ratios=(tuple(arch.aspect_ratios),))
-    roi = MultiScaleRoIAlign(featmap_names=["0"], output_size=arch.roi_output, sampling_ratio=2)
+    anchors = AnchorGenerator(sizes=(tuple(arch.anchor_sizes),), aspect_ratios=(ASPECT_RATIOS,))
+    roi = MultiScaleRoIAlign(featmap_names=["0"], output_size=ROI_OUTPUT, sampling_ratio=2)
     from torchvision.models.detection.faster_rcnn import FastRCNNPredictor, TwoMLPHead
 
-    head = TwoMLPHead(backbone.out_channels * arch.roi_output**2, arch.representation)
+    head = TwoMLPHead(backbone.out_channels * ROI_OUTPUT**2, arch.representation)
     model = FasterRCNN(
         backbone, num_classes=None, rpn_anchor_generator=anchors, box_roi_pool=roi, box_head=head,
         box_predictor=FastRCNNPredictor(arch.representation, 2),

@@ -25,6 +25,7 @@ from seedmap.config import ConfigModel, config_to_yaml
 from seedmap.detect.labels import LabelledImage
 from seedmap.detect.learned.crops import crop_to_full, extract_crops
 from seedmap.detect.learned.models import (
+    CROP_PAD,
     DetectorArch,
     PatchDiscriminator,
     SegmenterArch,
@@ -43,40 +44,65 @@ from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_write_text
 
 
+#: detector: AdamW weight decay
+DET_WEIGHT_DECAY = 1e-4
+#: detector: validation crops
+DET_VAL_CROPS = 8
+#: detector: box score counted in the validation metrics
+DET_VAL_SCORE = 0.5
+#: segmenter: weight of the L1 term against the GAN term (pix2pix)
+SEG_L1_WEIGHT = 100.0
+#: segmenter: box jitter (fraction of the box size) imitating detector errors
+SEG_BOX_JITTER = 0.15
+#: segmenter: GT instances with fewer visible pixels are not trained on
+SEG_MIN_AREA_PX = 6
+#: segmenter: validation crops
+SEG_VAL_CROPS = 256
+
+
 class DetectorTrainConfig(ConfigModel):
+    """How ``seedmap train detector`` trains the Faster R-CNN."""
+
+    #: random seed of the initialisation and the batches
     seed: int = 0
+    #: optimiser steps
     steps: int = 20000
+    #: crops per step
     batch_size: int = 2
+    #: AdamW learning rate
     lr: float = 1e-4
-    weight_decay: float = 1e-4
     #: training crops (px at the source resolution); the detector sees them upscaled by arch.upscale
     crop: int = 256
+    #: held-out share of the images when no --val source is given (the last ones)
     val_fraction: float = 0.2
-    val_every: int = 500
-    val_crops: int = 8
+    #: validate and write a resumable checkpoint every this many steps (and at the last)
     checkpoint_every: int = 500
+    #: log the losses every this many steps
     log_every: int = 10
-    score_threshold: float = 0.5
+    #: torch threads (0 = torch's default)
     threads: int = 0
     arch: DetectorArch = DetectorArch()
 
 
 class SegmenterTrainConfig(ConfigModel):
+    """How ``seedmap train segmenter`` trains pix2pix (the ONNX export is written beside the weights)."""
+
+    #: random seed of the initialisation and the batches
     seed: int = 0
+    #: optimiser steps
     steps: int = 5000
+    #: crops per step
     batch_size: int = 64
+    #: Adam learning rate
     lr: float = 2e-4
-    l1_weight: float = 100.0
-    #: box jitter (fraction of box size) imitating detector errors
-    box_jitter: float = 0.15
-    min_area_px: int = 6
+    #: held-out share of the images when no --val source is given (the last ones)
     val_fraction: float = 0.2
-    val_every: int = 250
-    val_crops: int = 256
+    #: validate and write a resumable checkpoint every this many steps (and at the last)
     checkpoint_every: int = 250
+    #: log the losses every this many steps
     log_every: int = 10
+    #: torch threads (0 = torch's default)
     threads: int = 0
-    export_onnx: bool = True
     arch: SegmenterArch = SegmenterArch()
 
 
@@ -241,7 +267,7 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
     run, tr_idx, va_idx, val_source = _start_run("detector", cfg, source, val_source, out, resume, overwrite)
     model = build_frcnn(cfg.arch)
     params = [p for p in model.parameters() if p.requires_grad]
-    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=DET_WEIGHT_DECAY)
     start = 0
     if resume:
         t, meta = read_weights(run.ckpt, "detector")
@@ -253,7 +279,7 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
     vcache = _Cache(val_source, 4)
     vrng = np.random.default_rng([cfg.seed, 10**9])
     val_items = []
-    for k in range(cfg.val_crops if va_idx else 0):
+    for k in range(DET_VAL_CROPS if va_idx else 0):
         li = vcache(va_idx[k % len(va_idx)])
         val_items.append(sample_detector_crop(li, cfg.crop, vrng))
     bar = _progress(cfg.steps, start, "train detector", progress)
@@ -286,9 +312,9 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
         if step % cfg.log_every == 0 or step == cfg.steps:
             run.write({"step": step, "split": "train", "loss": loss.item(), **last, "s_per_it": t_acc / n_acc})
             t_acc, n_acc = 0.0, 0
-        if val_items and (step % cfg.val_every == 0 or step == cfg.steps):
+        if val_items and (step % cfg.checkpoint_every == 0 or step == cfg.steps):
             run.write({"step": step, "split": "val", **detector_val_metrics(model, cfg.arch, val_items,
-                                                                            cfg.score_threshold)})
+                                                                            DET_VAL_SCORE)})
         if step % cfg.checkpoint_every == 0 or step == cfg.steps:
             ot, ojson = optimizer_tensors(opt, "optim")
             mt = {f"model.{k}": v for k, v in model.state_dict().items()}
@@ -323,7 +349,7 @@ def sample_segmenter_batch(li: LabelledImage, n: int, arch: SegmenterArch, rng: 
     c = (bx[:, :2] + bx[:, 2:]) / 2 + sh
     half = wh * sc / 2
     jb = np.concatenate([c - half, c + half], axis=1)
-    crops, wins, masks = extract_crops(li.image, jb, arch.crop_size, arch.crop_pad, li.labels, pick)
+    crops, wins, masks = extract_crops(li.image, jb, arch.crop_size, CROP_PAD, li.labels, pick)
     return crops, masks, wins, pick
 
 
@@ -397,8 +423,8 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
     if va_idx:
         vrng = np.random.default_rng([cfg.seed, 10**9])
         parts = [sample_segmenter_batch(val_source[va_idx[k % len(va_idx)]],
-                                        max(1, cfg.val_crops // min(len(va_idx), 4)), arch, vrng, cfg.box_jitter,
-                                        cfg.min_area_px) for k in range(min(len(va_idx), 4))]
+                                        max(1, SEG_VAL_CROPS // min(len(va_idx), 4)), arch, vrng, SEG_BOX_JITTER,
+                                        SEG_MIN_AREA_PX) for k in range(min(len(va_idx), 4))]
         val_batch = tuple(np.concatenate([p[j] for p in parts]) for j in range(4))
     bar = _progress(cfg.steps, start, "train segmenter", progress)
     gen.train()
@@ -411,8 +437,8 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
         crops, masks = np.zeros((0,)), np.zeros((0,))
         for _ in range(8):  # an image without usable instances: draw another
             li = cache(tr_idx[int(rng.integers(len(tr_idx)))])
-            crops, masks, _, _ = sample_segmenter_batch(li, cfg.batch_size, arch, rng, cfg.box_jitter,
-                                                        cfg.min_area_px)
+            crops, masks, _, _ = sample_segmenter_batch(li, cfg.batch_size, arch, rng, SEG_BOX_JITTER,
+                                                        SEG_MIN_AREA_PX)
             if len(crops):
                 break
         if not len(crops):
@@ -434,7 +460,7 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
         d_fake = disc(x, fake)
         loss_gan = bce(d_fake, torch.ones_like(d_fake))
         loss_l1 = (fake - y).abs().mean()
-        loss_g = loss_gan + cfg.l1_weight * loss_l1
+        loss_g = loss_gan + SEG_L1_WEIGHT * loss_l1
         loss_g.backward()
         opt_g.step()
         dt = time.perf_counter() - t0
@@ -446,7 +472,7 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
             run.write({"step": step, "split": "train", "loss_g": loss_g.item(), "loss_gan": loss_gan.item(),
                        "loss_l1": loss_l1.item(), "loss_d": loss_d.item(), "s_per_it": t_acc / n_acc})
             t_acc, n_acc = 0.0, 0
-        if val_batch is not None and len(val_batch[0]) and (step % cfg.val_every == 0 or step == cfg.steps):
+        if val_batch is not None and len(val_batch[0]) and (step % cfg.checkpoint_every == 0 or step == cfg.steps):
             run.write({"step": step, "split": "val", **segmenter_val_metrics(gen, arch, val_batch)})
         if step % cfg.checkpoint_every == 0 or step == cfg.steps:
             og, gj = optimizer_tensors(opt_g, "optg")
@@ -457,7 +483,6 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
                          {"optim_g": gj, "optim_d": dj})
     bar.close()
     save_weights(run.final, "segmenter", arch.model_dump(), gen.state_dict(), {"step": cfg.steps})
-    if cfg.export_onnx:
-        export_segmenter_onnx(gen, arch, run.out / "segmenter.onnx")
+    export_segmenter_onnx(gen, arch, run.out / "segmenter.onnx")  # onnxruntime inference
     return run.final
 
