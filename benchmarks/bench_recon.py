@@ -58,7 +58,7 @@ def _kps_cache_path(cache: Path, s: int, det: str, detector_set: tuple[str, ...]
     h = hashlib.sha1(json.dumps([KPS_CACHE_VERSION, det, dcfg.model_dump(),
                                  cfg.sgbm.model_dump(), cfg.cloud.model_dump()], sort_keys=True,
                                 default=str).encode())
-    if det in ("fast", "fast-cnn"):
+    if det == "fast":
         from seedmap.detect.cnn import cnn_weights_path
 
         w = cnn_weights_path(dcfg.cnn)

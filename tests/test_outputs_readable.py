@@ -198,7 +198,7 @@ def test_detect_result_config_repeats_the_run(tiny_range, tmp_path, monkeypatch)
     assert _run(["detect", tiny_range, "--config", first / "config.yaml", "--detector", "fast", "--out", over],
                 monkeypatch) == 0
     assert yaml.safe_load((over / "config.yaml").read_text())["detector"] == "fast"
-    assert json.loads((over / "meta.json").read_text())["detector"] != "fast"  # fast = the CNN ("fast-cnn")
+    assert json.loads((over / "meta.json").read_text())["detector"] == "fast"
     # a config without the detector key (a plain detector config) still loads; it means the default detector
     old = tmp_path / "old.yaml"
     old.write_text(yaml.safe_dump({k: v for k, v in cfg.items() if k not in ("detector", "weights")}))

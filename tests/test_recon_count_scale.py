@@ -67,9 +67,8 @@ def test_scale_factor_is_clipped_and_applied_once():
     assert s.mv_support_sigma_px == cfg.mv_support_sigma_px  # not a scaled tolerance
 
 
-def test_gt_and_fast_profiles_scale_with_the_seed_size_and_fast_classic_does_not():
+def test_gt_and_fast_profiles_scale_with_the_seed_size():
     """On auto-exposed arm scans the arm network's boxes follow the seed size, so ``fast`` scales too."""
     cfg = CountConfig()
     assert cfg.for_detector("gt").mv_scale_ref_px == 7.0
     assert cfg.for_detector("fast").mv_scale_ref_px == 6.0 and cfg.for_detector("fast").mv_scale_power == 1.5
-    assert cfg.for_detector("fast-classic").mv_scale_ref_px == 0.0

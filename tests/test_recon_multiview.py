@@ -267,7 +267,7 @@ def test_detector_profiles_are_applied_once_and_can_be_switched_off():
 
 def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
     """The pipeline's detector overrides select the CNN's arm-scan weights (threshold 0.4) while plain ``fast``
-    keeps the field network; ``fast`` and ``fast-cnn`` count with twice the pixel tolerances, scaled with the
+    keeps the field network; ``fast`` counts with twice the pixel tolerances, scaled with the
     seed size."""
     from seedmap.detect import make_detector
 
@@ -276,7 +276,7 @@ def test_reconstruction_runs_fast_with_the_arm_scan_network_and_its_profile():
     assert det.path.name == "fast_cnn_arm.onnx" and det.cfg.threshold == 0.4
     assert make_detector("fast").path.name == "fast_cnn.onnx"
     plain = CountConfig()
-    for name in ("fast", "fast-cnn"):
+    for name in ("fast",):
         c = rc.count.for_detector(name)
         assert c.mv_stereo_dv_px == 2 * plain.mv_stereo_dv_px and c.mv_link_px == 2 * plain.mv_link_px
         assert c.mv_max_reproj_px == 2 * plain.mv_max_reproj_px and c.mv_grow_px == 2 * plain.mv_grow_px

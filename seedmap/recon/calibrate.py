@@ -120,7 +120,7 @@ def count_domain(cfg: ReconConfig) -> CountDomain:
 
     dcfg = resolve_config(None, list(cfg.detector_overrides))
     weights = None
-    if cfg.detector in ("fast", "fast-cnn"):
+    if cfg.detector == "fast":
         from seedmap.detect.cnn import cnn_weights_path
 
         w = cnn_weights_path(dcfg.cnn)

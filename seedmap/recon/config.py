@@ -18,10 +18,7 @@ DETECTOR_PROFILES: dict[str, list[str]] = {
     "fast": ["mv_dedupe_shared=0.6", "mv_stereo_dv_px=4", "mv_link_px=4", "mv_max_reproj_px=5", "mv_grow_px=4",
              "mv_min_support=0.5", "mv_scale_ref_px=6.0", "mv_scale_power=1.5",
              "mv_row_sigma_px=1.5", "mv_relink_px=10", "mv_relink_min_support=1.5"],
-    "fast-classic": ["mv_dedupe_shared=1.0"],
 }
-#: ``fast-cnn`` is the same network as ``fast`` (when its weights exist), so it counts with the same profile
-DETECTOR_PROFILES["fast-cnn"] = list(DETECTOR_PROFILES["fast"])
 
 
 class SgbmConfig(ConfigModel):

@@ -181,21 +181,15 @@ def default_methods(cfg: BenchmarkConfig, with_gt: bool = True) -> list[MethodSp
     """``seeds+<detector>`` for each available detector, then every descriptor baseline.
 
     ``frcnn-pix2pix`` joins only when trained weights (and torch) are present; the ``gt`` oracle
-    only where the data has ground truth; the detector that ``fast`` stands for (``fast-cnn`` or
-    ``fast-classic``, :func:`seedmap.detect.fast.fast_alias`) is not run a second time under its own name.
-    ``cfg.methods`` picks from these (any ``seeds+<detector>`` is accepted).
+    only where the data has ground truth. ``cfg.methods`` picks from these (any ``seeds+<detector>`` is accepted).
     """
     from seedmap.associate.features import available_kinds
     from seedmap.detect import available_detectors, default_detector_name
-    from seedmap.detect.fast import fast_alias
 
     dets = []
-    same_as_fast = fast_alias()  # `fast` is one of these two; running both would repeat a method
     for d in available_detectors():
         if d == "frcnn-pix2pix" and default_detector_name() != "frcnn-pix2pix":
             continue  # no trained weights shipped
-        if d == same_as_fast:
-            continue
         dets.append(d)
     dets.sort(key=lambda d: {"gt": 0, "fast": 1}.get(d, 2))
     avail = available_kinds()
