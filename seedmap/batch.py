@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from seedmap.detect.base import default_detector_name
 from seedmap.errors import ConfigError, InputError
 from seedmap.progress import Progress
 
@@ -336,7 +337,8 @@ def run_batch(
     # as run_slam: the arguments, else the config's (a result's config.yaml), else seeds / gt; the written
     # config.yaml names the ones used
     matcher = matcher if matcher is not None else (cfg.matcher if cfg.matcher is not None else "seeds")
-    detector = detector if detector is not None else (cfg.detector if cfg.detector is not None else "gt")
+    detector = detector if detector is not None else (cfg.detector if cfg.detector is not None
+                                                      else default_detector_name())
     cfg = cfg.model_copy(update={"matcher": matcher, "detector": detector})
     ranges = find_ranges(field, exclude=[out])
     if not ranges:

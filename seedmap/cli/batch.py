@@ -22,7 +22,8 @@ def batch_cmd(
     matcher: Optional[str] = typer.Option(None, "--matcher", "-m", help="seeds | sift | orb | akaze | surf "
                                           "(default: the --config's matcher, else seeds)"),
     detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Seed detector for --matcher seeds "
-                                           "(default: the --config's detector, else gt = oracle)."),
+                                           "(default: the --config's detector, else the best real one; gt = the "
+                                           "ORACLE)."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),

@@ -30,7 +30,8 @@ def reconstruct_cmd(
     from seedmap.config import load_config
     from seedmap.errors import ConfigError
     from seedmap.recon.config import ReconConfig
-    from seedmap.recon.pipeline import detector_label, run_reconstruct
+    from seedmap.detect import detector_label
+    from seedmap.recon.pipeline import run_reconstruct
 
     extra = list(set_ or [])
     if register is not None:
@@ -81,7 +82,8 @@ def count_cmd(
     from seedmap.errors import InputError
     from seedmap.io.atomic import atomic_output_dir, atomic_write_text
     from seedmap.recon.config import ReconConfig
-    from seedmap.recon.pipeline import detector_label, recount_calibrated, seeds_csv_text
+    from seedmap.detect import detector_label
+    from seedmap.recon.pipeline import recount_calibrated, seeds_csv_text
 
     base_cfg = results / "config.yaml"
     if config is None and not base_cfg.is_file():

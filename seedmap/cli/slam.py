@@ -46,7 +46,8 @@ def slam_cmd(
     dataset: Path = typer.Argument(..., help="Stereo dataset (seedmap layout or any registered loader)."),
     out: Path = typer.Option(..., "--out", "-o", help="Result folder (written atomically)."),
     detector: Optional[str] = typer.Option(None, "--detector", "-d", help="Seed detector for --matcher seeds "
-                                           "(default: the --config's detector, else gt = oracle)."),
+                                           "(default: the --config's detector, else the best real one; gt = the "
+                                           "ORACLE)."),
     matcher: Optional[str] = typer.Option(None, "--matcher", "-m", help="seeds | sift | orb | akaze | surf "
                                           "(default: the --config's matcher, else seeds)"),
     config: Optional[Path] = ConfigOpt,
@@ -62,7 +63,11 @@ def slam_cmd(
     cfg = slam_config(config, set_)
     res = run_slam(dataset, out, matcher=matcher, detector=detector, config=cfg, overwrite=overwrite,
                    progress=not quiet, rerun=rerun)
-    print_slam_metrics(res.metrics, f"seedmap slam: {dataset.name} ({res.metrics.matcher})")
+    from seedmap.detect import detector_label
+
+    m = res.metrics
+    det = f", detector {detector_label(m.detector, m.oracle_detector)}" if m.detector else ""
+    print_slam_metrics(m, f"seedmap slam: {dataset.name} ({m.matcher}{det})")
     typer.echo(f"results in {out} (report.html)" + (f", rerun recording {rerun}" if rerun else ""))
 
 
@@ -100,5 +105,7 @@ def demo_cmd(
 
         detector = default_detector_name()
     res = run_slam(data, out, matcher="seeds", detector=detector, overwrite=True, progress=True)
-    print_slam_metrics(res.metrics, f"seedmap demo: seeds matcher, detector {detector}")
+    from seedmap.detect import detector_label
+
+    print_slam_metrics(res.metrics, f"seedmap demo: seeds matcher, detector {detector_label(detector)}")
     typer.echo(f"results in {out} (report.md, topview.png, landmarks.ply, trajectory.tum)")

@@ -99,6 +99,17 @@ def default_weights_path() -> Path:
     return Path(__file__).with_name("weights") / "detector.safetensors"
 
 
+#: detectors that read the simulator's ground truth instead of the images
+ORACLE_DETECTORS = frozenset({"gt"})
+
+
+def detector_label(name: str, oracle: bool | None = None) -> str:
+    """The detector's name as reports and the console show it: ``gt (ORACLE)`` for the ground-truth oracle."""
+    if oracle is None:
+        oracle = name in ORACLE_DETECTORS
+    return f"{name} (ORACLE)" if oracle else name
+
+
 def default_detector_name() -> str:
     """``frcnn-pix2pix`` when torch and shipped trained weights are present, else ``fast``."""
     if default_weights_path().is_file() and default_weights_path().with_name("segmenter.safetensors").is_file():

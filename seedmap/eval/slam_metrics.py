@@ -48,6 +48,8 @@ class SlamMetrics:
     ms_per_frame: dict[str, float] = field(default_factory=dict)
     matcher: str = ""
     detector: str = ""
+    #: the detector read the simulator's ground truth (ORACLE), not the images
+    oracle_detector: bool = False
     backend: str = ""
     ate_first_pose_rmse_m: float | None = None
     ate_online_rmse_m: float | None = None

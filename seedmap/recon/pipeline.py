@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from seedmap.config import dump_config
+from seedmap.detect import detector_label
 from seedmap.errors import InputError
 from seedmap.geometry import transform_points
 from seedmap.io.atomic import atomic_output_dir, atomic_write_text
@@ -40,13 +41,6 @@ JOINTS_FILE = "joints.csv"
 ARM_FILE = "arm.yaml"
 #: views with fewer valid 3D points are skipped
 MIN_VIEW_POINTS = 500
-
-
-def detector_label(name: str, oracle: bool | None = None) -> str:
-    """The detector's name as reports and the console show it: ``gt (ORACLE)`` for the ground-truth oracle."""
-    if oracle is None:
-        oracle = name == "gt"
-    return f"{name} (ORACLE)" if oracle else name
 
 
 def scan_files(root: str | Path, cfg: ReconConfig | None = None) -> tuple[Path, Path]:

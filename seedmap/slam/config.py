@@ -97,5 +97,5 @@ class SlamConfig(ConfigModel):
     max_frames: int | None = Field(None, ge=1)
     #: the run's matcher (seeds | sift | orb | akaze | surf; None: seeds; --matcher overrides it)
     matcher: str | None = None
-    #: the run's seed detector (None: the gt oracle; --detector overrides it)
+    #: the run's seed detector (None: the best real detector, `fast`; `gt` is the ORACLE; --detector overrides it)
     detector: str | None = None

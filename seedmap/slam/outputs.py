@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seedmap.detect.base import detector_label
 from seedmap.io.atomic import atomic_write_text
 from seedmap.io.trajectory import write_kitti, write_tum
 from seedmap.records import Trajectory
@@ -90,7 +91,8 @@ def report_markdown(m, dataset: str | Path) -> str:
     lines = [
         f"# SLAM result: {Path(dataset).name}",
         "",
-        f"matcher `{m.matcher}`, detector `{m.detector or '–'}`, back-end `{m.backend}`",
+        f"matcher `{m.matcher}`, detector `{detector_label(m.detector, m.oracle_detector) if m.detector else '–'}`, "
+        f"back-end `{m.backend}`",
         "",
         "| metric | value |",
         "|---|---|",

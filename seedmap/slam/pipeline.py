@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.config import dump_config
+from seedmap.detect.base import ORACLE_DETECTORS, default_detector_name
 from seedmap.errors import SeedmapError
 from seedmap.eval.slam_metrics import SlamMetrics, compute_slam_metrics
 from seedmap.records import Trajectory
@@ -79,10 +80,11 @@ def run_slam(
     from seedmap.slam.core import SemanticSlam
 
     cfg = config or SlamConfig()
-    # matcher / detector: the arguments, else the config's (a result's config.yaml), else seeds / gt; the
-    # resolved ones go into the written config.yaml so that --config repeats the run
+    # matcher / detector: the arguments, else the config's (a result's config.yaml), else seeds / the best real
+    # detector; the resolved ones go into the written config.yaml so that --config repeats the run
     matcher = matcher if matcher is not None else (cfg.matcher if cfg.matcher is not None else "seeds")
-    detector = detector if detector is not None else (cfg.detector if cfg.detector is not None else "gt")
+    detector = detector if detector is not None else (cfg.detector if cfg.detector is not None
+                                                      else default_detector_name())
     cfg = cfg.model_copy(update={"matcher": matcher, "detector": detector})
     if out is not None:
         out = Path(out)
@@ -143,6 +145,7 @@ def run_slam(
         traj, gt, frames=n, lost_frame=slam.lost_frame, lost_reason=slam.lost_reason,
         range_length=range_length_of(dataset), ms_per_frame=ms, online=online,
         matcher=matcher, detector=detector if det is not None else "", backend=backend_name, landmarks=len(lm),
+        oracle_detector=det is not None and detector in ORACLE_DETECTORS,
     )
     mpf = {k: np.asarray([r[k] for r in rows], np.int64) for k in ("frame", "stereo", "temporal", "inliers")}
     result = SlamResult(metrics, traj, out, mpf)

@@ -13,6 +13,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from seedmap.detect.base import detector_label
 from seedmap.records import StereoCalib, Trajectory
 from seedmap.viz.rerun_log import RerunLogger
 
@@ -174,7 +175,8 @@ def slam_html_report(folder: str | Path, result: Any, gt: Trajectory | None, lm:
         colors = (c * 255).astype(np.uint8)
     frame_ids = [int(r["frame"]) for r in rows if r.get("ok", 1)]
     images = _landmark_overlays(dataset, result.trajectory, frame_ids, lm.xyz) if len(lm.xyz) else {}
-    title = f"seedmap slam: {Path(dataset).name} ({m.matcher}{', ' + m.detector if m.detector else ''})"
+    det = detector_label(m.detector, m.oracle_detector) if m.detector else ""
+    title = f"seedmap slam: {Path(dataset).name} ({m.matcher}{', ' + det if det else ''})"
     return write_html_report(Path(folder) / "report.html", title=title, metrics=m, trajectories=trajs,
                              matches_per_frame=mpf or None, timings=timings or None, points=lm.xyz,
                              point_colors=colors, images=images or None,
