@@ -5,7 +5,7 @@
 * ``bag_random_over_stream``: time per frame of ``seq[i]`` on a ROS1 bag divided by one streaming pass
   (``for frame in seq``).
 
-Writes JSON (``--out``, default ``results/bench_io.json``). Usage: ``python benchmarks/bench_io.py [--frames N]``.
+Writes JSON (``--out``, default ``benchmarks/results/bench_io.json``). Usage: ``python benchmarks/bench_io.py [--frames N]``.
 """
 
 from __future__ import annotations
@@ -115,7 +115,7 @@ def bench_bag(root: Path, n: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=20)
-    ap.add_argument("--out", type=Path, default=Path("results/bench_io.json"))
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/bench_io.json"))
     args = ap.parse_args()
     from seedmap.io.atomic import atomic_write_text
 

@@ -15,7 +15,7 @@ Misses (counted GT left unmatched) by visible area (10-15, 15-25, >= 25 px) and 
 visible. The network runs once per image at the lowest threshold of ``--thresholds``; a higher threshold is
 the same detections filtered by score (a peak does not depend on the threshold), so a sweep costs one run.
 
-    .venv/bin/python benchmarks/detect_errors.py --dataset data/det_s36 [--weights W.onnx]
+    .venv/bin/python benchmarks/bench_detect_accuracy.py --dataset data/det_s36 [--weights W.onnx]
         [--thresholds 0.35,0.4,0.45,0.5,0.55] [--out results/x.json]
 
 The shipped network runs with its refiner (``cnn.refiner=auto``; the sweep is then over the refined score);
