@@ -84,7 +84,7 @@ def test_processes_failure_recorded_and_resume(tmp_path, sim_ranges):
     field = _field(tmp_path, sim_ranges)
     out = tmp_path / "res"
     cfg = load_config(SlamConfig, None, SLAM)
-    s = run_batch(field, out, config=cfg, workers=2, progress=False)
+    s = run_batch(field, out, detector="gt", config=cfg, workers=2, progress=False)
     assert [r.range for r in s.ranges] == ["row1/a", "row2/b", "row2/bad"]
     assert (s.n_ok, s.n_failed) == (2, 1)
     rows = _summary(out)
@@ -108,7 +108,7 @@ def test_processes_failure_recorded_and_resume(tmp_path, sim_ranges):
     # resume: finished ranges are not re-run (their folders are untouched); the failure is retried
     stamp = (out / "row1" / "a" / "metrics.json").stat().st_mtime_ns
     shutil.copy(sim_ranges[0] / "left" / "000001.png", field / "row2" / "bad" / "left" / "000001.png")
-    s2 = run_batch(field, out, config=cfg, workers=1, progress=False)
+    s2 = run_batch(field, out, detector="gt", config=cfg, workers=1, progress=False)
     assert (s2.n_ok, s2.n_failed) == (3, 0)
     by = {r.range: r for r in s2.ranges}
     assert by["row1/a"].resumed and by["row2/b"].resumed and not by["row2/bad"].resumed
@@ -125,11 +125,11 @@ def test_ray_local_matches_processes(tmp_path, sim_ranges):
     cfg = load_config(SlamConfig, None, SLAM)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        s = run_batch(field, tmp_path / "ray", config=cfg, workers=2, ray="local", progress=False)
+        s = run_batch(field, tmp_path / "ray", detector="gt", config=cfg, workers=2, ray="local", progress=False)
     finally:
         ray.shutdown()
     assert s.executor == "ray" and (s.n_ok, s.n_failed) == (2, 0)
-    seq = run_batch(field, tmp_path / "seq", config=cfg, workers=1, progress=False)
+    seq = run_batch(field, tmp_path / "seq", detector="gt", config=cfg, workers=1, progress=False)
     for a, b in zip(s.ranges, seq.ranges):
         assert a.range == b.range and a.mdm_m == pytest.approx(b.mdm_m, abs=1e-9) and a.landmarks == b.landmarks
 

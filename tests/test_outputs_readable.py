@@ -80,7 +80,8 @@ def test_slam_config_yaml_repeats_the_run(slam_result, tiny_range, tmp_path, mon
 
 
 def test_slam_config_without_matcher_or_detector_still_reads(tiny_range, tmp_path, monkeypatch):
-    # configs of seedmap 0.1.0 before these keys existed: they mean the options' defaults (seeds, gt oracle)
+    # configs of seedmap 0.1.0 before these keys existed: they mean the defaults (seeds, the best real detector)
+    from seedmap.detect import default_detector_name
     from seedmap.slam.config import SlamConfig
 
     old = SlamConfig().model_dump(mode="json")
@@ -90,7 +91,7 @@ def test_slam_config_without_matcher_or_detector_still_reads(tiny_range, tmp_pat
     out = tmp_path / "o"
     assert _run(["slam", tiny_range, "--config", p, "-q", "--set", "max_frames=3", "--out", out], monkeypatch) == 0
     m = json.loads((out / "metrics.json").read_text())
-    assert m["detector"] == "gt" and m["matcher"] == "seeds"
+    assert m["detector"] == default_detector_name() and m["matcher"] == "seeds" and not m["oracle_detector"]
 
 
 def test_detect_coco_is_valid_and_config_repeats_it(tiny_range, tmp_path, monkeypatch):

@@ -42,8 +42,8 @@ def test_slam_rerun_and_report(tmp_path, monkeypatch):
 
     ds = simulate_range(load_config(SimConfig, None, [*TINY_RANGE, "seed=5"]), tmp_path / "range", progress=False)
     out, rrd = tmp_path / "res", tmp_path / "logs" / "slam.rrd"
-    assert _run(["slam", str(ds), "--out", str(out), "--rerun", str(rrd), "--set", "max_frames=3", "-q"],
-                monkeypatch) == 0
+    assert _run(["slam", str(ds), "--detector", "gt", "--out", str(out), "--rerun", str(rrd), "--set",
+                 "max_frames=3", "-q"], monkeypatch) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames_tracked"] == 3 and m["landmarks"] > 0
     _html_checks(out / "report.html", f"{m['landmarks']} landmarks", "ground truth")
