@@ -14,6 +14,7 @@ import io
 import json
 import os
 import time
+from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Callable, Iterable
@@ -21,6 +22,7 @@ from typing import Any, Callable, Iterable
 from seedmap.detect.base import default_detector_name
 from seedmap.errors import ConfigError, InputError
 from seedmap.progress import Progress
+from seedmap.workers import process_pool
 
 __all__ = ["RangeResult", "BatchSummary", "find_ranges", "run_batch", "summarize_result_dir"]
 
@@ -263,14 +265,11 @@ def _restore_env(old: dict[str, str | None]) -> None:
 
 
 def _run_local(jobs: list[tuple], workers: int, done: Callable[[dict], None]) -> None:
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    import multiprocessing as mp
-
     if workers <= 1:
         for job in jobs:
             done(run_one_range(*job))
         return
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn")) as ex:
+    with process_pool(min(workers, len(jobs))) as ex:  # spawned workers, killed with this process
         futs = [ex.submit(run_one_range, *job) for job in jobs]
         for fut in as_completed(futs):
             done(fut.result())

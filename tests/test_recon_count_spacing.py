@@ -35,10 +35,11 @@ def test_view_spacing_and_support_shift():
     assert support_shift(_circle(12)) == 0.0  # sparser scans are not shifted
 
 
-def test_sparse_scans_warn():
+def test_sparse_scans_warn(caplog):
     views = [StereoKeypoints(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))] * 12
     from seedmap.records import StereoCalib
 
     calib = StereoCalib(fx=1000.0, fy=1000.0, cx=500.0, cy=400.0, baseline=0.06, width=1000, height=800)
-    with pytest.warns(UserWarning, match="30.0 deg apart"):
+    with caplog.at_level("WARNING", logger="seedmap"):  # a seedmap warning (one `warning: ` line in the CLI)
         assert count_multiview(views, _circle(12), calib, CountConfig()).count == 0
+    assert [r.name for r in caplog.records if "30.0 deg apart" in r.getMessage()] == ["seedmap"]

@@ -1,16 +1,20 @@
 """The typer app and its command groups, the options every command shares, and the entry point.
 
-User errors (:class:`~seedmap.errors.SeedmapError`) print one line on stderr and exit with code 2.
+User errors (:class:`~seedmap.errors.SeedmapError`) print one line on stderr and exit with code 2; warnings print
+as ``warning: <message>`` lines (:mod:`seedmap.log`).
 """
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 
 import typer
 
 from seedmap import __version__
 from seedmap.errors import SeedmapError
+from seedmap.log import cli_messages
 
 app = typer.Typer(
     name="seedmap",
@@ -48,23 +52,37 @@ def _root(
     """seedmap: maps of crop plants from stereo cameras, with sorghum seeds as landmarks."""
 
 
-def main() -> None:
-    """Console entry point: user errors become one line on stderr and exit code 2."""
-    import logging
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread: the command unwinds as on Ctrl-C (partial outputs removed, worker
+    processes stopped) instead of dying where it stands."""
 
-    log = logging.getLogger("seedmap")  # loader warnings (grey images converted, frames dropped): one line each
-    for h in [h for h in log.handlers if getattr(h, "seedmap_cli", False)]:
-        log.removeHandler(h)  # a previous main() in this process (tests): bind to the current sys.stderr
-    handler = logging.StreamHandler(sys.stderr)
-    handler.setFormatter(logging.Formatter("warning: %(message)s"))
-    handler.seedmap_cli = True  # type: ignore[attr-defined]
-    log.addHandler(handler)
-    log.propagate = False
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+def main() -> None:
+    """Console entry point: user errors become one ``error: `` line on stderr and exit code 2; warnings are
+    ``warning: `` lines (:mod:`seedmap.log`); Ctrl-C prints ``interrupted`` (exit 130), SIGTERM ``terminated``
+    (exit 143), after the command has removed what it had half written."""
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    old_term = signal.signal(signal.SIGTERM, _on_sigterm) if in_main_thread else None
     try:
-        app()
+        with cli_messages():
+            app()
     except SeedmapError as e:
         typer.secho(f"error: {e}", err=True, fg=typer.colors.RED)
         sys.exit(2)
+    except SystemExit as e:
+        if e.code == 130:  # typer turns KeyboardInterrupt into Exit(130); seedmap exits 130 for nothing else
+            typer.secho("interrupted", err=True)
+        raise
     except KeyboardInterrupt:
         typer.secho("interrupted", err=True)
         sys.exit(130)
+    except _Terminated:
+        typer.secho("terminated", err=True)
+        sys.exit(143)
+    finally:
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)

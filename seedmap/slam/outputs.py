@@ -13,6 +13,7 @@ from seedmap.detect.base import detector_label
 from seedmap.io.atomic import atomic_write_text
 from seedmap.io.trajectory import write_kitti, write_tum
 from seedmap.records import Trajectory
+from seedmap.viz.plotting import figure_text
 
 
 def cluster_panicles(xyz: np.ndarray, eps_m: float, min_points: int) -> np.ndarray:
@@ -40,6 +41,7 @@ def write_landmarks(folder: Path, lm, clusters: np.ndarray) -> None:
                         "in_graph": in_graph})
 
 
+@figure_text()
 def plot_topview(path: Path, est: Trajectory, gt: Trajectory | None, lm_xyz: np.ndarray, title: str) -> None:
     """Top view of the estimate (and GT) with the landmarks.
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from seedmap.io.atomic import atomic_write_text
 from seedmap.records import Trajectory
+from seedmap.viz.plotting import figure_text
 
 MAX_3D_POINTS = 150_000  # above this the 3D view shows every k-th point (the file stays a few MB)
 
@@ -174,6 +175,7 @@ def points_3d_html(points: np.ndarray, colors: np.ndarray | None = None,
     return pio.to_html(fig, full_html=False, include_plotlyjs=include_plotlyjs, include_mathjax=False)
 
 
+@figure_text()
 def write_html_report(
     path: str | Path,
     title: str = "seedmap report",

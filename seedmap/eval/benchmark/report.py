@@ -22,6 +22,7 @@ from seedmap.eval.published import (
     published_mean_fraction,
 )
 from seedmap.io.atomic import atomic_write_bytes, atomic_write_text
+from seedmap.viz.plotting import figure_text
 
 
 def fmt_cell(rec: RunRecord | None, attr: str = "mdm_m", digits: int = 2) -> str:
@@ -210,6 +211,7 @@ def _png_bytes(fig) -> bytes:
     return buf.getvalue()
 
 
+@figure_text()
 def bar_chart_png(records: Sequence[RunRecord]) -> bytes:
     """Grouped bars of the fraction of each range mapped per method (+ GT-validated dots, published)."""
     import matplotlib
@@ -264,6 +266,7 @@ def bar_chart_png(records: Sequence[RunRecord]) -> bytes:
     return data
 
 
+@figure_text()
 def matches_plot_png(records: Sequence[RunRecord], scenario: str, range_name: str) -> bytes | None:
     """Per-frame surviving matches of every method on one range: stereo (top), temporal and
     RANSAC-verified temporal inliers (bottom); a dotted vertical line marks where a method got lost."""

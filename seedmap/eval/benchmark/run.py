@@ -9,7 +9,7 @@ import math
 import os
 import time
 import traceback
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -29,6 +29,7 @@ from seedmap.eval.benchmark.spec import (
 from seedmap.eval.published import PUBLISHED_MDM, published_key
 from seedmap.io.atomic import atomic_write_text
 from seedmap.progress import Progress
+from seedmap.workers import process_pool
 
 # ------------------------------------------------------------------------------------------------
 # jobs (run in worker processes: top-level functions, plain arguments)
@@ -45,13 +46,6 @@ def _worker_init() -> None:
         cv2.setNumThreads(1)
     except Exception:  # pragma: no cover - cv2 always present
         pass
-
-
-def _spawn_pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of spawned (not forked: GTSAM/torch state), single-threaded worker processes."""
-    import multiprocessing as mp
-
-    return ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_worker_init)
 
 
 def simulate_job(preset: str, seed: int, overrides: Sequence[str], out: str) -> str:
@@ -106,7 +100,7 @@ def run_slam_jobs(jobs: list[tuple], workers: int, progress: bool, label: str) -
                 out[i] = slam_job(*a)
                 bar.advance()
         else:
-            with _spawn_pool(workers) as pool:
+            with process_pool(workers, _worker_init) as pool:  # killed with this process
                 futs = {pool.submit(slam_job, *a): i for i, a in enumerate(jobs)}
                 while futs:
                     done, _ = wait(list(futs), return_when=FIRST_COMPLETED)
@@ -306,7 +300,7 @@ def run_benchmark(
                 results[(spec.name, m.name)] = _finish(out, spec, m, status, note)
                 bar.advance()
         else:
-            with _spawn_pool(cfg.workers) as pool:
+            with process_pool(cfg.workers, _worker_init) as pool:  # killed with this process
                 pending: dict[Future, tuple[str, RangeSpec, MethodSpec | None]] = {}
                 # simulations first (the long jobs), SLAM runs of already cached ranges fill the gaps
                 for spec in need_sim:

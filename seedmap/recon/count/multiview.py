@@ -4,12 +4,11 @@ grown and de-duplicated (docs/method/counting.md)."""
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 from scipy.spatial import cKDTree
 
 from seedmap.geometry import invert, transform_points
+from seedmap.log import warn
 from seedmap.recon.config import CountConfig
 from seedmap.recon.count.records import CannotLinkUnionFind, MultiViewDetail, SeedCount, StereoKeypoints
 from seedmap.recon.count.stereo_match import (SUPPORT_REF_DEG, stereo_matches, support_shift, view_spacing_deg,
@@ -63,9 +62,8 @@ def count_multiview(views: list[StereoKeypoints | None], poses: np.ndarray, cali
         raise ValueError(f"{len(poses)} poses for {V} views")
     sp = view_spacing_deg(poses)
     if np.isfinite(sp) and sp > 1.05 * SUPPORT_REF_DEG:
-        warnings.warn(f"the views are {sp:.1f} deg apart; the multiview counter's settings are for "
-                      f"{SUPPORT_REF_DEG:g} deg (24 views) and under-counted simulated 12-view scans by about "
-                      "13 %", stacklevel=2)
+        warn(f"the views are {sp:.1f} deg apart; the multiview counter's settings are for {SUPPORT_REF_DEG:g} deg "
+             "(24 views) and under-counted simulated 12-view scans by about 13 %")
     if cfg.mv_scale_ref_px > 0:
         cfg = scaled_tolerances(views, cfg)  # pixel tolerances scaled with the seeds' median image size
     Tcw = invert(poses)
