@@ -449,7 +449,7 @@ def _path_case(cmd: list, what: str):
 
 
 for _name, _cmd in {"slam": ["slam", "P", "--out", "OUT", "-q"],
-                    "detect": ["detect", "P", "--out", "OUT", "--detector", "fast-classic"],
+                    "detect": ["detect", "P", "--out", "OUT", "--detector", "fast"],
                     "reconstruct": ["reconstruct", "P", "--out", "OUT", "-q"],
                     "eval-associate": ["eval", "associate", "P"],
                     "batch": ["batch", "P", "--out", "OUT", "-q"],

@@ -75,7 +75,7 @@ def make_assets(root: Path) -> Assets:
         ["simulate", "panicle", "--out", scan, "-q", "--views", "3", "--seed", "3", "--set", "sim.camera.scale=0.12"],
         ["reconstruct", scan, "--out", rec, "-q", "--set", "detector_overrides=[gt.min_area_px=4]"],
         ["slam", rng, "--out", slam, "-q"],
-        ["detect", rng, "--out", det, "--detector", "fast-classic"],
+        ["detect", rng, "--out", det, "--detector", "fast"],
     ]
     for argv in steps:
         code, exc = run_main(argv)
@@ -210,9 +210,9 @@ def add(id: str, group: str, fn: Callable[[Assets, Path], Setup]) -> None:
 
 
 def copy_range(a: Assets, t: Path, name: str = "ds", gt: bool = True) -> Path:
-    """A copy of the simulated range (``gt=False``: a user's own recording, no ground truth)."""
+    """A copy of the simulated range (``gt=False``: a user's own recording, no ground truth and no output marker)."""
     dst = t / name
-    shutil.copytree(a.range, dst, ignore=None if gt else shutil.ignore_patterns("gt"))
+    shutil.copytree(a.range, dst, ignore=None if gt else shutil.ignore_patterns("gt", ".seedmap-output.json"))
     return dst
 
 
@@ -549,7 +549,7 @@ def dataset_case(cmd: str, mut: str) -> Callable[[Assets, Path], Setup]:
         out = t / "out"
         argv = {
             "slam": ["slam", ds, "--out", out, "-q"],
-            "detect": ["detect", ds, "--out", out, "--detector", "fast-classic"],
+            "detect": ["detect", ds, "--out", out, "--detector", "fast"],
             "eval-associate": ["eval", "associate", ds, "--out", out],
             "benchmark": ["benchmark", "run", ds, "--out", out, "--methods", "orb", "--workers", "1"],
         }[cmd]
