@@ -39,6 +39,7 @@ LEGACY_FILES: dict[str, tuple[str, ...]] = {
     "count": ("count.json",),
     "dataset": ("calib.yaml", "times.txt", "gt/config.yaml"),
     "benchmark": ("config.yaml", "results.csv"),
+    "tune": ("config.yaml", "tune.json"),
     "batch": ("summary.md", "summary.json"),
     "training": ("config.yaml",),
 }
@@ -79,9 +80,9 @@ def check_not_input(out: Path, inputs: Iterable[str | Path | None], what: str = 
         if o == i:
             raise InputError(f"is an input of this command; pick another {what} path", out)
         if _inside(o, i):
-            raise InputError(f"lies inside the input {inp}; pick an {what} path outside it", out)
+            raise InputError(f"lies inside the input {inp}; pick a path outside it", out)
         if _inside(i, o):
-            raise InputError(f"contains the input {inp}; pick an {what} path that does not", out)
+            raise InputError(f"contains the input {inp}; pick a path that does not", out)
 
 
 def read_marker(folder: Path) -> dict | None:
@@ -146,7 +147,7 @@ def clean_stale_partials(out: Path) -> list[Path]:
     return removed
 
 
-def check_output_parent(out: Path) -> None:
+def check_output_parent(out: Path, what: str = "output") -> None:
     """Fail early (one line) when ``out`` cannot be created: parent not writable or a file."""
     out = Path(out)
     probe = out.parent if str(out.parent) else Path(".")
@@ -162,7 +163,7 @@ def check_output_parent(out: Path) -> None:
         test.mkdir()
         test.rmdir()
     except OSError as e:
-        raise InputError(f"cannot create the output here ({e.strerror or e})", out) from None
+        raise InputError(f"cannot create the {what} here ({e.strerror or e})", out) from None
 
 
 def dataset_option_files(options: object | None) -> list[str]:
@@ -296,7 +297,7 @@ def check_output_file(path: Path, inputs: Iterable[str | Path | None] = (), over
     """Refuse to replace a file that is an input, exists without ``overwrite``, or that seedmap did not write."""
     path = Path(path)
     check_not_input(path, inputs, what)
-    check_output_parent(path)
+    check_output_parent(path, what)
     if path.is_symlink() or (path.exists() and not path.is_file()):
         raise InputError(f"exists and is not a regular {what}", path)
     if not path.exists():

@@ -59,9 +59,9 @@ def check_rrd_path(path: str | Path, inputs: Iterable[str | Path | None] = (), o
     exists and is not a recording seedmap wrote (replaced only with ``overwrite``); creates its folder."""
     path = Path(path)
     if path.is_dir() and not path.is_symlink():
-        check_not_input(path, inputs, "recording")
+        check_not_input(path, inputs, "rerun recording")
         raise InputError("is a folder; --rerun wants a file name such as run.rrd", path)
-    check_output_file(path, inputs, overwrite, is_rerun_recording, what="recording")
+    check_output_file(path, inputs, overwrite, is_rerun_recording, what="rerun recording")
     _probe(path)
 
 
