@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
+from seedmap import outputs
 from seedmap.detect.base import default_detector_name
 from seedmap.errors import ConfigError, InputError
 from seedmap.progress import Progress
@@ -306,6 +307,18 @@ def _run_ray(jobs: list[tuple], workers: int, address: str, done: Callable[[dict
 # ---------------------------------------------------------------------------------------------------
 # the batch
 # ---------------------------------------------------------------------------------------------------
+def check_names(matcher: str, detector: str | None) -> None:
+    """Refuse an unknown ``--matcher`` / ``--detector`` before anything runs (else every range failed alike)."""
+    from seedmap.associate import FEATURE_MATCHERS, SEED_MATCHERS
+    from seedmap.detect import available_detectors
+
+    key = matcher.strip().lower()
+    if key not in SEED_MATCHERS + FEATURE_MATCHERS:
+        raise ConfigError(f"--matcher: unknown matcher {matcher!r} (known: {', '.join(SEED_MATCHERS + FEATURE_MATCHERS)})")
+    if key in SEED_MATCHERS and detector not in (None, "default", "auto") and detector not in available_detectors():
+        raise ConfigError(f"--detector: unknown detector {detector!r} (known: {', '.join(available_detectors())})")
+
+
 def run_batch(
     field: str | Path,
     out: str | Path,
@@ -315,6 +328,7 @@ def run_batch(
     workers: int = 1,
     ray: str | None = None,
     progress: bool = True,
+    inputs: Iterable[str | Path | None] = (),
 ) -> BatchSummary:
     """Run SLAM on every range below ``field`` into ``out/<relative path>/`` and write the summary.
 
@@ -322,16 +336,14 @@ def run_batch(
     address (``'auto'``, ``'ray://host:10001'``) or ``'local'`` to start one here - on a real cluster
     ``field`` and ``out`` must be paths every node sees (a shared file system) and the nodes need
     seedmap installed. Ranges with a finished ``metrics.json`` are skipped (resume); a failing range is
-    recorded, never raised.
+    recorded, never raised. ``inputs``: more files the command read (``--config``).
     """
     from seedmap.config import dump_config
-    from seedmap.io.atomic import check_output_parent
     from seedmap.slam.config import SlamConfig
 
     field, out = Path(field), Path(out)
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
-    check_output_parent(out)
     cfg = config or SlamConfig()
     # as run_slam: the arguments, else the config's (a result's config.yaml), else seeds / gt; the written
     # config.yaml names the ones used
@@ -339,11 +351,17 @@ def run_batch(
     detector = detector if detector is not None else (cfg.detector if cfg.detector is not None
                                                       else default_detector_name())
     cfg = cfg.model_copy(update={"matcher": matcher, "detector": detector})
+    check_names(matcher, detector)
     ranges = find_ranges(field, exclude=[out])
     if not ranges:
         raise InputError("no dataset found below this folder (no loader recognises any sub-folder)", field)
     field_root = field if field.is_dir() else field.parent
-    out.mkdir(parents=True, exist_ok=True)
+    # out may lie in the field (it is skipped), never in a range, never the field or around it; a batch folder
+    # of its own is resumed, any other existing folder refused
+    o, f = outputs.resolved(out), outputs.resolved(field_root)
+    if o == f or o in f.parents:
+        raise InputError(f"is or contains the field {field}; pick an output folder outside it", out)
+    outputs.resume_dir(out, "batch", [*ranges, *inputs, *outputs.dataset_option_files(cfg.dataset)])
     dump_config(cfg, out / "config.yaml")
 
     t0 = time.perf_counter()

@@ -25,22 +25,28 @@ from pathlib import Path
 from seedmap import __version__
 from seedmap.errors import InputError
 from seedmap.io import detect_format
+from seedmap.io.atomic import WriteError
 
 #: name of the marker file written into every output folder
 MARKER = ".seedmap-output.json"
 
 #: kinds of output folders and the files that made older seedmap versions' folders of that kind recognisable
 LEGACY_FILES: dict[str, tuple[str, ...]] = {
+    "panicle-scan": ("calib.yaml", "arm.yaml", "gt/scan.yaml"),
     "slam": ("config.yaml", "metrics.json", "trajectory.tum"),
     "detect": ("config.yaml", "detections_coco.json"),
     "reconstruct": ("config.yaml", "metrics.json", "seeds.csv"),
     "count": ("count.json",),
     "dataset": ("calib.yaml", "times.txt", "gt/config.yaml"),
-    "panicle-scan": ("calib.yaml", "gt/config.yaml"),
     "benchmark": ("config.yaml", "results.csv"),
+    "tune": ("config.yaml", "tune.json"),
     "batch": ("summary.md", "summary.json"),
     "training": ("config.yaml",),
 }
+#: kinds whose folders are datasets (a loader recognises them): --overwrite may re-render them
+DATASET_KINDS = frozenset({"dataset", "panicle-scan"})
+#: fields of a dataset options section (seedmap.io.options.DatasetOptions) that name input files
+DATASET_FILE_FIELDS = ("calib", "right_calib", "poses")
 
 _PARTIAL = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.(?P<tok>[0-9a-f]{8})\.partial$")
 _OLD_PARTIAL = re.compile(r"^\.(?P<name>.+)\.[A-Za-z0-9_]{8}\.partial$")  # tempfile.mkdtemp names
@@ -52,7 +58,8 @@ def _umask() -> int:
     return mask
 
 
-def _resolved(p: Path) -> Path:
+def resolved(p: Path) -> Path:
+    """``p`` made absolute, links followed where possible."""
     try:
         return Path(p).expanduser().resolve()
     except (OSError, RuntimeError):
@@ -65,17 +72,17 @@ def _inside(child: Path, parent: Path) -> bool:
 
 def check_not_input(out: Path, inputs: Iterable[str | Path | None], what: str = "output") -> None:
     """Refuse an output path that is, contains or lies inside one of ``inputs``."""
-    o = _resolved(out)
+    o = resolved(out)
     for inp in inputs:
         if inp is None:
             continue
-        i = _resolved(Path(inp))
+        i = resolved(Path(inp))
         if o == i:
             raise InputError(f"is an input of this command; pick another {what} path", out)
         if _inside(o, i):
-            raise InputError(f"lies inside the input {inp}; pick an {what} path outside it", out)
+            raise InputError(f"lies inside the input {inp}; pick a path outside it", out)
         if _inside(i, o):
-            raise InputError(f"contains the input {inp}; pick an {what} path that does not", out)
+            raise InputError(f"contains the input {inp}; pick a path that does not", out)
 
 
 def read_marker(folder: Path) -> dict | None:
@@ -101,6 +108,7 @@ def output_kind(folder: Path) -> str | None:
 
 
 def write_marker(folder: Path, kind: str) -> None:
+    """Write the marker of a ``kind`` output into ``folder``."""
     (Path(folder) / MARKER).write_text(json.dumps({"kind": kind, "seedmap": __version__}) + "\n", encoding="utf-8")
 
 
@@ -139,7 +147,7 @@ def clean_stale_partials(out: Path) -> list[Path]:
     return removed
 
 
-def check_output_parent(out: Path) -> None:
+def check_output_parent(out: Path, what: str = "output") -> None:
     """Fail early (one line) when ``out`` cannot be created: parent not writable or a file."""
     out = Path(out)
     probe = out.parent if str(out.parent) else Path(".")
@@ -149,13 +157,27 @@ def check_output_parent(out: Path) -> None:
         raise InputError("output parent is not a folder", probe)
     if not os.access(probe, os.W_OK | os.X_OK):
         raise InputError("output folder is not writable", probe)
+    # os.access() says yes to root where the file system refuses (/proc, read-only mounts): try it
+    test = probe / f".seedmap-probe.{os.getpid()}.{secrets.token_hex(4)}"
+    try:
+        test.mkdir()
+        test.rmdir()
+    except OSError as e:
+        raise InputError(f"cannot create the {what} here ({e.strerror or e})", out) from None
+
+
+def dataset_option_files(options: object | None) -> list[str]:
+    """The input files a dataset options section names (calibration, right calibration, GT poses)."""
+    if options is None:
+        return []
+    return [v for v in (getattr(options, k, None) for k in DATASET_FILE_FIELDS) if v]
 
 
 def check_output_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (), overwrite: bool = False) -> None:
     """Everything :func:`output_dir` checks before it writes, for commands that fail early."""
     out = Path(out)
-    check_output_parent(out)
     check_not_input(out, inputs)
+    check_output_parent(out)
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise InputError("output path exists and is not a folder", out)
     if not out.exists() or not any(out.iterdir()):
@@ -168,16 +190,17 @@ def check_output_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] =
         what = "not a folder seedmap wrote" if found is None else f"a seedmap {found} output, not a {kind} result"
         raise InputError(f"is {what}; --overwrite replaces only a seedmap {kind} result (pick another output "
                          "path)", out)
-    if kind != "dataset":
+    if kind not in DATASET_KINDS:
         fmt = detect_format(out)
-        if fmt is not None and found != "dataset":
+        if fmt is not None:
             raise InputError(f"is a {fmt} dataset; --overwrite never replaces data (pick another output path)", out)
 
 
-def _os_error(e: OSError, path: Path) -> InputError:
+def _os_error(e: OSError | WriteError, path: Path) -> InputError:
     if e.errno == errno.ENOSPC:
         return InputError("no space left on the device; nothing was written", path)
-    return InputError(f"cannot write here ({e.strerror or e}); nothing was written", path)
+    reason = e.reason if isinstance(e, WriteError) else (e.strerror or e)
+    return InputError(f"cannot write here ({reason}); nothing was written", path)
 
 
 @contextlib.contextmanager
@@ -210,19 +233,71 @@ def output_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (),
                 shutil.rmtree(old, ignore_errors=True)
             else:
                 os.replace(tmp, out)
-        except OSError as e:
+        except (OSError, WriteError) as e:  # a full disk while writing: one line naming the output
             raise _os_error(e, out) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 
+def check_resume_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (), strict: bool = True) -> None:
+    """What :func:`resume_dir` checks, for commands that create the folder later (training)."""
+    out = Path(out)
+    check_not_input(out, inputs)
+    check_output_parent(out)
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise InputError("output path exists and is not a folder", out)
+    if out.exists() and any(out.iterdir()):
+        found = output_kind(out)
+        if found != kind and (strict or found is not None):
+            what = "not a folder seedmap wrote" if found is None else f"a seedmap {found} output"
+            raise InputError(f"exists and is {what}; {kind} writes and resumes only in its own output folder "
+                             "(pick another output path)", out)
+        fmt = detect_format(out)
+        if fmt is not None:
+            raise InputError(f"is a {fmt} dataset; pick another output path", out)
+
+
+def mark(out: Path, kind: str) -> None:
+    """Create ``out`` (if needed) with its marker (kept when it has one)."""
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if read_marker(out) is None:
+            write_file_atomic(out / MARKER, (json.dumps({"kind": kind, "seedmap": __version__}) + "\n").encode())
+    except OSError as e:
+        raise _os_error(e, out) from None
+
+
+def resume_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (), strict: bool = True) -> Path:
+    """Open a folder that a command fills run by run and resumes (benchmark, batch, training); returns ``out``.
+
+    An existing non-empty folder must be a seedmap output of this ``kind`` (``strict=False``: or a folder
+    seedmap did not write, never another kind's output); a folder that is, contains or lies inside an input, or
+    that a loader reads as a dataset, is refused. The marker is written first, so that a killed run resumes.
+    """
+    out = Path(out)
+    check_resume_dir(out, kind, inputs, strict)
+    clean_stale_partials(out)
+    mark(out, kind)
+    return out
+
+
+@contextlib.contextmanager
+def os_errors(path: Path) -> Iterator[None]:
+    """Turn an ``OSError`` (full disk, permissions) raised in the block into one line naming ``path``."""
+    try:
+        yield
+    except (OSError, WriteError) as e:
+        raise _os_error(e, Path(path)) from None
+
+
 def check_output_file(path: Path, inputs: Iterable[str | Path | None] = (), overwrite: bool = False,
                       written_by_seedmap: Callable[[Path], bool] | None = None, what: str = "file") -> None:
     """Refuse to replace a file that is an input, exists without ``overwrite``, or that seedmap did not write."""
     path = Path(path)
-    check_output_parent(path)
     check_not_input(path, inputs, what)
+    check_output_parent(path, what)
     if path.is_symlink() or (path.exists() and not path.is_file()):
         raise InputError(f"exists and is not a regular {what}", path)
     if not path.exists():

@@ -44,14 +44,15 @@ def _tiny_dataset(root: Path, n: int = 2) -> Path:
 @pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc (a folder nobody can create in)")
 def test_uncreatable_output_folder_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
     # not a FileNotFoundError traceback from tempfile.mkdtemp
-    from seedmap.io.atomic import atomic_output_dir, atomic_write_text
+    from seedmap.io.atomic import atomic_write_text
+    from seedmap.outputs import output_dir
 
     ds = _tiny_dataset(tmp_path / "ds")
     out = Path("/proc/seedmap-out")
     assert _run(["slam", ds, "--matcher", "orb", "-q", "--out", out], monkeypatch) == 2
     assert str(out) in _one_error_line(capsys.readouterr().err)
     with pytest.raises(InputError, match="cannot"):
-        with atomic_output_dir(out):
+        with output_dir(out, "slam"):
             pass
     with pytest.raises(InputError, match="cannot write here"):
         atomic_write_text(out / "metrics.json", "{}")
@@ -314,27 +315,27 @@ def test_demo_refuses_to_replace_foreign_folders(tmp_path, monkeypatch, capsys):
 
 def test_overwrite_never_replaces_recorded_data(tmp_path, monkeypatch, capsys):
     # `seedmap detect DATA --out DATA --overwrite` must not delete the dataset to put the detections in its place
-    from seedmap.io.atomic import atomic_output_dir
+    from seedmap.outputs import MARKER, output_dir
 
     data = _kitti(tmp_path / "kitti", -12.0)
     files = sorted(p.relative_to(data) for p in data.rglob("*"))
     for args in (["detect", data, "--detector", "fast"], ["slam", data, "--matcher", "orb", "-q"]):
         assert _run([*args, "--out", data, "--overwrite"], monkeypatch) == 2
-        assert "is a kitti dataset" in _one_error_line(capsys.readouterr().err)
+        assert "is an input of this command" in _one_error_line(capsys.readouterr().err)
     assert sorted(p.relative_to(data) for p in data.rglob("*")) == files
     # `--out PARENT --overwrite` with the input inside PARENT
     assert _run(["slam", data, "--matcher", "orb", "-q", "--out", tmp_path, "--overwrite"], monkeypatch) == 2
-    assert "holds a kitti dataset (kitti)" in _one_error_line(capsys.readouterr().err)
+    assert "contains the input" in _one_error_line(capsys.readouterr().err)
     assert sorted(p.relative_to(data) for p in data.rglob("*")) == files
     sim = _tiny_dataset(tmp_path / "sim")  # a seedmap layout without gt/config.yaml: someone's own recording
-    with pytest.raises(InputError, match="is a seedmap dataset"):
-        with atomic_output_dir(sim, overwrite=True):
+    with pytest.raises(InputError, match="not a folder seedmap wrote"):
+        with output_dir(sim, "dataset", overwrite=True):
             pass
     (sim / "gt").mkdir()
     (sim / "gt" / "config.yaml").write_text("seed: 0\n")  # what `seedmap simulate` writes: it may re-render it
-    with atomic_output_dir(sim, overwrite=True) as tmp:
+    with output_dir(sim, "dataset", overwrite=True) as tmp:
         (tmp / "x.txt").write_text("x")
-    assert [p.name for p in sim.iterdir()] == ["x.txt"]
+    assert sorted(p.name for p in sim.iterdir()) == [MARKER, "x.txt"]
 
 
 @pytest.mark.skipif(not EUROC.is_dir(), reason="needs ../shared/realdata")

@@ -8,7 +8,7 @@ import pytest
 from seedmap.config import ConfigModel, apply_overrides, dump_config, load_config
 from seedmap.errors import ConfigError, InputError, SeedmapError
 from seedmap.geometry import invert, pose_to_tum, rotation_angle_deg, transform_points, tum_to_pose
-from seedmap.io.atomic import atomic_output_dir
+from seedmap.outputs import MARKER, output_dir
 from seedmap.io.trajectory import read_kitti, read_tum, write_kitti, write_tum
 from seedmap.records import StereoCalib, Trajectory
 
@@ -132,23 +132,23 @@ def test_config_yaml_and_overrides(tmp_path):
         apply_overrides({}, ["novalue"])
 
 
-def test_atomic_output_dir_leaves_nothing_on_failure(tmp_path):
+def test_output_dir_leaves_nothing_on_failure(tmp_path):
     out = tmp_path / "res"
     with pytest.raises(RuntimeError):
-        with atomic_output_dir(out) as tmp:
+        with output_dir(out, "slam") as tmp:
             (tmp / "half.txt").write_text("x")
             raise RuntimeError("boom")
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
-    with atomic_output_dir(out) as tmp:
+    with output_dir(out, "slam") as tmp:
         (tmp / "ok.txt").write_text("x")
     assert (out / "ok.txt").read_text() == "x"
     with pytest.raises(SeedmapError, match="--overwrite"):
-        with atomic_output_dir(out):
+        with output_dir(out, "slam"):
             pass
-    with atomic_output_dir(out, overwrite=True) as tmp:
+    with output_dir(out, "slam", overwrite=True) as tmp:
         (tmp / "new.txt").write_text("y")
-    assert sorted(p.name for p in out.iterdir()) == ["new.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "new.txt"]
     assert [p.name for p in tmp_path.iterdir()] == ["res"]
 
 
@@ -161,7 +161,7 @@ def test_atomic_outputs_have_normal_permissions(tmp_path):
     old = os.umask(0o022)
     try:
         atomic_write_text(tmp_path / "a.txt", "x")
-        with atomic_output_dir(tmp_path / "d") as tmp:
+        with output_dir(tmp_path / "d", "slam") as tmp:
             (tmp / "f").write_text("y")
     finally:
         os.umask(old)

@@ -33,8 +33,10 @@ def batch_cmd(
 
     cfg = slam_config(config, set_)
     s = run_batch(field, out, matcher=matcher, detector=detector, config=cfg, workers=workers, ray=ray,
-                  progress=not quiet)
+                  progress=not quiet, inputs=[config])
     typer.echo(summary_markdown(s))
     typer.echo(f"summary in {out / 'summary.md'} ({s.n_ok} ok, {s.n_failed} failed)")
     if s.n_failed and not s.n_ok:  # one failing range is recorded, not fatal; a field where none ran is
-        raise SeedmapError(f"all {s.n_failed} ranges failed (errors in {out / 'summary.md'})")
+        first = next(r for r in s.ranges if r.status != "ok")
+        raise SeedmapError(f"all {s.n_failed} ranges failed (first: {first.range}: {first.error}; errors in "
+                           f"{out / 'summary.md'})")

@@ -22,7 +22,7 @@ def detect_cmd(
     weights: Optional[Path] = typer.Option(None, "--weights",
                                            help="Weights: .safetensors of frcnn-pix2pix, .onnx of fast."),
     overlay: bool = typer.Option(False, "--overlay", help="Also write PNGs with the fitted ellipses drawn."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing output folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing seedmap detect result."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
 ) -> None:
@@ -45,5 +45,6 @@ def detect_cmd(
         if name not in ("fast", "frcnn-pix2pix"):
             raise SeedmapError(f"--weights is read by --detector fast (.onnx) and frcnn-pix2pix only; "
                                f"{name!r} would ignore {weights} (use --detector fast --weights FILE)")
-    p = run_detect(dataset, out, detector, weights, cfg, overlay=overlay, overwrite=overwrite)
+    p = run_detect(dataset, out, detector, weights, cfg, overlay=overlay, overwrite=overwrite,
+                   inputs=[config, weights])
     typer.echo(f"detections written to {p}")

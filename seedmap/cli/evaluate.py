@@ -10,6 +10,12 @@ import typer
 from seedmap.cli.app import ConfigOpt, SetOpt, eval_app
 from seedmap.cli.slam import print_slam_metrics, slam_config
 from seedmap.errors import SeedmapError
+from seedmap.outputs import check_output_file, dataset_option_files, is_seedmap_json
+
+
+def _check_json_out(path: Path, inputs: list, overwrite: bool, key: str) -> None:
+    """A JSON output file: never an input; replaced (``--overwrite``) only when seedmap wrote it (it has ``key``)."""
+    check_output_file(path, inputs, overwrite, lambda p: is_seedmap_json(p, key), what="JSON file")
 
 
 @eval_app.command("detect")
@@ -24,6 +30,7 @@ def eval_detect_cmd(
         help="Ignore GT instances with fewer visible pixels (default: the detectable-seed size, "
              "10 px at 1434 px wide, scaled with the image: seedmap.detect.config; 0 scores every sliver)."),
     per_frame: bool = typer.Option(False, "--per-frame", help="Also print the per-frame table."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an --out metrics file seedmap wrote."),
 ) -> None:
     """Precision, recall, F1 (box IoU) and keypoint error (px) against GT, per frame and overall."""
     from rich.console import Console
@@ -35,7 +42,7 @@ def eval_detect_cmd(
         raise SeedmapError(f"--matching must be greedy or hungarian, got {matching!r}")
     if not 0.0 < iou <= 1.0:  # --iou 2 scored every detection a miss, exit 0
         raise SeedmapError(f"--iou must be in (0, 1], got {iou:g}")
-    m, path = run_eval_detect(dataset, detections, out, iou, matching, min_gt_area)
+    m, path = run_eval_detect(dataset, detections, out, iou, matching, min_gt_area, overwrite=overwrite)
 
     def _f(x: Optional[float], nd: int = 3) -> str:
         return "-" if x is None else f"{x:.{nd}f}"
@@ -68,6 +75,7 @@ def eval_associate_cmd(
     set_: Optional[List[str]] = SetOpt,
     max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Only the first N frames."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write the report as JSON here."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an --out report seedmap wrote."),
 ) -> None:
     """Stereo and temporal match precision / recall against ground-truth seed ids."""
     from rich.console import Console
@@ -76,6 +84,8 @@ def eval_associate_cmd(
     from seedmap.eval.associate_metrics import evaluate_association, write_report
 
     cfg = slam_config(config, set_)
+    if out is not None:
+        _check_json_out(out, [dataset, config, *dataset_option_files(cfg.dataset)], overwrite, "temporal")
     rep = evaluate_association(dataset, detector=detector, matcher=matcher, config=cfg, max_frames=max_frames)
     t = Table(title=f"association: {dataset.name} ({matcher}, detector {detector})")
     for c in ("", "matches", "correct", "possible", "precision", "recall", "recall (gated)"):
@@ -97,9 +107,13 @@ def eval_slam_cmd(
     result: Path = typer.Argument(..., help="A folder written by `seedmap slam`."),
     dataset: Path = typer.Argument(..., help="The dataset it ran on (with ground truth)."),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the recomputed metrics here."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a --json metrics file seedmap wrote."),
 ) -> None:
     """Recompute MDM, GT-validated MDM, ATE and RPE of a result folder against the dataset's GT."""
     from seedmap.slam.evaluate import evaluate_result_dir
+
+    if json_out is not None:
+        _check_json_out(json_out, [result, dataset], overwrite, "frames_tracked")
 
     m = evaluate_result_dir(result, dataset, json_out)
     print_slam_metrics(m, f"eval slam: {result.name}")

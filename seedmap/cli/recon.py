@@ -21,7 +21,8 @@ def reconstruct_cmd(
                                                                     "simulator's ground truth, ORACLE)."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing results folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing seedmap reconstruct result (and "
+                                   "a --rerun recording seedmap wrote)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also record the run into this rerun .rrd file "
                                          "(view it with `rerun FILE.rrd`)."),
@@ -41,11 +42,8 @@ def reconstruct_cmd(
     if detector is not None:
         extra.append(f"detector={detector}")
     cfg = load_config(ReconConfig, config, extra)
-    if rerun is not None:  # the recording is written after the results: refuse a bad path before any work
-        from seedmap.viz.rerun_log import check_rrd_path
-
-        check_rrd_path(rerun)
-    path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet, rerun=rerun)
+    path, m = run_reconstruct(dataset, out, cfg, overwrite=overwrite, progress=not quiet, rerun=rerun,
+                              inputs=[config])
     q = m["quality"]
     cal = m.get("seed_count_calibrated")
     det = detector_label(cfg.detector, m["oracle_detector"])
@@ -68,7 +66,7 @@ def count_cmd(
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write seeds.csv + count.json to this new folder."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing --out folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing seedmap count --out folder."),
 ) -> None:
     """Seed count of a reconstruction, re-run from its folder (default method multiview on detections.csv;
     e.g. --set count.mv_link_px=2.5, or --set count.method=density for the paper's 3D de-duplication)."""
@@ -80,7 +78,8 @@ def count_cmd(
 
     from seedmap.config import dump_config, load_config
     from seedmap.errors import InputError
-    from seedmap.io.atomic import atomic_output_dir, atomic_write_text
+    from seedmap.io.atomic import atomic_write_text
+    from seedmap.outputs import check_output_dir, output_dir
     from seedmap.recon.config import ReconConfig
     from seedmap.detect import detector_label
     from seedmap.recon.pipeline import recount_calibrated, seeds_csv_text
@@ -91,6 +90,10 @@ def count_cmd(
     if config is None and (results / "trajectory.tum").is_file() and not (results / "cloud.ply").is_file():
         raise InputError("a `seedmap slam` result folder; count needs a `seedmap reconstruct` one", results)
     cfg = load_config(ReconConfig, config if config is not None else base_cfg, list(set_ or []))
+    cal_file = cfg.count.calibration if cfg.count.calibration not in ("auto", "none") else None
+    inputs = [results, config, cal_file]
+    if out is not None:  # before any work
+        check_output_dir(out, "count", inputs, overwrite)
     c, cal = recount_calibrated(results, cfg)
     t = Table(title=f"seed count: {results} (detector {detector_label(cfg.detector)})")
     for col in ("seeds", "calibrated estimate", "median diameter (mm)", "median views/seed", "median spread (mm)"):
@@ -105,7 +108,7 @@ def count_cmd(
     else:
         typer.echo(f"calibrated estimate: {Path(cal.source).name}, {cal.fitted}")
     if out is not None:
-        with atomic_output_dir(out, overwrite=overwrite) as tmp:
+        with output_dir(out, "count", inputs, overwrite) as tmp:
             dump_config(cfg, tmp / "config.yaml")
             atomic_write_text(tmp / "seeds.csv", seeds_csv_text(c))
             atomic_write_text(tmp / "count.json", json.dumps({"results": str(results), **cal.as_dict()}, indent=2))

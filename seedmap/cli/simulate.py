@@ -19,7 +19,7 @@ def simulate_range_cmd(
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     preview: bool = typer.Option(False, "--preview", help="Write preview.png (frames with GT centres)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a dataset seedmap simulated."),
     stats: bool = typer.Option(False, "--stats", help="Print and save stats.json (realism self-check)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
@@ -38,7 +38,8 @@ def simulate_range_cmd(
     if seed is not None:
         extra.append(f"seed={seed}")
     cfg = load_config(SimConfig, config, extra, base=base)
-    path = simulate_range(cfg, out, overwrite=overwrite, progress=not quiet, preview=preview, stats=stats)
+    path = simulate_range(cfg, out, overwrite=overwrite, progress=not quiet, preview=preview, stats=stats,
+                          inputs=[config])
     if stats:
         import json
 
@@ -72,7 +73,7 @@ def simulate_panicle_cmd(
                                  "field ranges' gain, flash-saturated at the arm's stand-off."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing dataset folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a dataset seedmap simulated."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Simulate a UR5 arm circling one panicle with the stereo camera (images, joints.csv, arm.yaml, GT)."""
@@ -96,5 +97,5 @@ def simulate_panicle_cmd(
             raise ConfigError("this is the simulated scene's config; a scan is repeated from the scan.yaml "
                               f"next to it (--config {config.parent / 'scan.yaml'})", config) from None
         raise
-    path = simulate_panicle(cfg, out, overwrite=overwrite, progress=not quiet)
+    path = simulate_panicle(cfg, out, overwrite=overwrite, progress=not quiet, inputs=[config])
     typer.echo(f"wrote {path}")

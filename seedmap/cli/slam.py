@@ -52,7 +52,8 @@ def slam_cmd(
                                           "(default: the --config's matcher, else seeds)"),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing result folder."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing seedmap slam result folder (and "
+                                   "a --rerun recording seedmap wrote)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also record the run into this rerun .rrd file "
                                          "(view it with `rerun FILE.rrd`)."),
@@ -62,7 +63,7 @@ def slam_cmd(
 
     cfg = slam_config(config, set_)
     res = run_slam(dataset, out, matcher=matcher, detector=detector, config=cfg, overwrite=overwrite,
-                   progress=not quiet, rerun=rerun)
+                   progress=not quiet, rerun=rerun, inputs=[config] if config is not None else [])
     from seedmap.detect import detector_label
 
     m = res.metrics
@@ -87,9 +88,12 @@ def demo_cmd(
     if data.exists() and not SeedmapDataset.is_dataset(data) and (not data.is_dir() or any(data.iterdir())):
         raise SeedmapError(f"{data}: exists and is not a seedmap dataset; the demo simulates into a new or empty "
                            "folder (pass another --data; `seedmap slam` runs on your own data)")
-    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (out / "metrics.json").is_file())):
+    from seedmap.outputs import check_output_dir, output_kind
+
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and output_kind(out) != "slam")):
         raise SeedmapError(f"{out}: exists and is not a seedmap slam result, which the demo would replace "
                            "(pass another --out)")
+    check_output_dir(out, "slam", [data], overwrite=True)  # before simulating: never the data, nor around it
     if not SeedmapDataset.is_dataset(data):
         from seedmap.config import load_config
         from seedmap.sim import simulate_range

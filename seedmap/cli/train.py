@@ -10,6 +10,7 @@ import typer
 
 from seedmap.cli.app import ConfigOpt, SetOpt, train_app
 from seedmap.errors import SeedmapError
+from seedmap.outputs import check_output_file, check_resume_dir, is_seedmap_json, mark
 
 
 def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],
@@ -26,7 +27,8 @@ def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_
     src = open_labelled(data, images_root)
     vsrc = open_labelled(val, images_root) if val is not None else None
     fn = tr.train_detector if kind == "detector" else tr.train_segmenter
-    p = fn(src, out, cfg, val_source=vsrc, resume=resume, overwrite=overwrite)
+    p = fn(src, out, cfg, val_source=vsrc, resume=resume, overwrite=overwrite,
+           inputs=[data, val, images_root, config])
     typer.echo(f"{kind} weights written to {p} (metrics: {out / (kind + '_metrics.jsonl')})")
 
 
@@ -71,7 +73,7 @@ def train_count_calibration_cmd(
     features: str = typer.Option("obs_fraction,seed_diam_mm", "--features",
                                  help="Comma-separated features (obs_fraction, seed_diam_mm; empty = a constant "
                                       "ratio only, for few panicles)."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an existing calibration file."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a calibration file seedmap wrote."),
 ) -> None:
     """Fit a count calibration (seedmap.recon.calibrate) from reconstructions with known counts; use it with
     `seedmap count RESULT --set count.calibration=FILE` or `seedmap reconstruct ... --set count.calibration=FILE`."""
@@ -82,10 +84,11 @@ def train_count_calibration_cmd(
     from seedmap.recon.config import ReconConfig
     from seedmap.recon.pipeline import recount_calibrated
 
-    if out.exists() and not overwrite:
-        raise SeedmapError(f"{out} exists (use --overwrite to replace it)")
     if out.suffix.lower() != ".json":
         raise SeedmapError(f"{out}: the calibration file must end in .json")
+    # never one of the results or the counts; --overwrite replaces only a calibration seedmap wrote
+    check_output_file(out, [*results, counts], overwrite, lambda p: is_seedmap_json(p, "domain"),
+                      what="calibration file")
     names = tuple(f.strip() for f in features.split(",") if f.strip())
     truth_by: dict[str, float] = {}
     if counts is not None:
@@ -190,6 +193,7 @@ def train_cnn_refiner_cmd(
     for d in val or []:
         if not d.is_dir():
             raise SeedmapError(f"{d}: validation dataset folder not found (--val scores simulated datasets)")
+    check_resume_dir(out, "training", [*data, *(val or []), weights, images_root], strict=False)
     target = out / "cnn_refiner.safetensors"
     if target.exists() and not overwrite:
         raise SeedmapError(f"{target} exists (use --overwrite to replace it)")
@@ -208,6 +212,7 @@ def train_cnn_refiner_cmd(
         for k, v in metrics["validation"]["pooled"].items():
             typer.echo(f"validation {k}: P {v['precision']:.4f} R {v['recall']:.4f} F1 {v['f1']:.4f}")
     atomic_write_text(out / "metrics.json", json.dumps(metrics, indent=1))
+    mark(out, "training")
     typer.echo(f"cnn-refiner written to {onnx_path} (weights and config: {target})")
 
 
@@ -251,6 +256,7 @@ def train_fast_cnn_cmd(
                                "`seedmap train detector` and `seedmap train segmenter`")
         if not d.is_dir():
             raise SeedmapError(f"{d}: dataset folder not found")
+    check_resume_dir(out, "training", [*data, *(val or []), init], strict=False)
     if (out / "fast_cnn.onnx").exists() and not resume:
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
@@ -258,6 +264,7 @@ def train_fast_cnn_cmd(
                          arm_fraction=arm_fraction, lr=lr,
                          init_weights=str(init) if init else None)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
+    mark(out, "training")
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "
                f"held-out loss {f.get('val_loss', float('nan')):.3f}, box L1 {f.get('val_box_l1_px', float('nan')):.2f} px)")

@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from seedmap import outputs
 from seedmap.detect.base import default_detector_name, make_detector
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses
 from seedmap.detect.io import detection_image_sizes, detection_record, read_detections, write_detection_files
 from seedmap.errors import InputError
-from seedmap.io.atomic import atomic_output_dir, atomic_write_text
+from seedmap.io.atomic import atomic_write_text
 from seedmap.io.images import write_png
 
 
@@ -32,18 +34,21 @@ class DetectRunConfig(DetectConfig):
 
 def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", weights: str | Path | None = None,
                config: DetectConfig | None = None, overlay: bool = False, overwrite: bool = False,
-               progress: bool = True, frames: slice | None = None) -> Path:
+               progress: bool = True, frames: slice | None = None, inputs: Sequence[str | Path | None] = ()) -> Path:
     """Detect seeds in every frame and camera of ``dataset``; write the detection files into ``out``.
 
     ``out`` gets ``detections.jsonl`` + ``detections_coco.json`` (see :mod:`seedmap.detect.io`),
     ``config.yaml`` (the resolved detector config), ``meta.json`` (detector name, oracle flag,
     timing) and, with ``overlay``, ``overlay/{left,right}/NNNNNN.png`` with the ellipses drawn.
+    ``inputs``: more files the command read (``--config``, ``--weights``): ``out`` is never one of them.
     """
     from seedmap.config import dump_config
 
     cfg = config or DetectConfig()
     if isinstance(cfg, DetectRunConfig):  # the detector's own settings only (they forbid unknown keys)
         cfg = DetectConfig.model_validate(cfg.model_dump(exclude={"detector", "weights"}))
+    ins = [dataset, *inputs, *outputs.dataset_option_files(cfg.dataset)]
+    outputs.check_output_dir(Path(out), "detect", ins, overwrite)
     seq = cfg.dataset.open(dataset)
     det = make_detector(detector, dataset=seq if detector == "gt" else None, weights=weights, config=cfg)
     idx = list(range(len(seq)))[frames] if frames is not None else list(range(len(seq)))
@@ -51,7 +56,7 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
         raise InputError("dataset has no frames", dataset)
     records = []
     t_det = 0.0
-    with atomic_output_dir(Path(out), overwrite=overwrite) as tmp:
+    with outputs.output_dir(Path(out), "detect", ins, overwrite) as tmp:
         it = idx
         if progress:
             from tqdm import tqdm
@@ -84,15 +89,19 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
 
 def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: str | Path | None = None,
                     iou_threshold: float = 0.5, matching: str = "greedy", min_gt_area: float | None = None,
-                    progress: bool = True):
+                    progress: bool = True, overwrite: bool = False):
     """Evaluate a detections folder against a simulated dataset's GT; writes ``detect_metrics.json``.
 
     ``min_gt_area=None`` ignores GT slivers below the detectable-seed size at the dataset's width
-    (seedmap.detect.config.min_visible_seed_px, the same rule as the ``gt`` oracle); 0 scores all."""
+    (seedmap.detect.config.min_visible_seed_px, the same rule as the ``gt`` oracle); 0 scores all.
+    An ``out_json`` of its own is never an input, and replaces only a metrics file seedmap wrote (``overwrite``)."""
     from seedmap.detect.config import min_visible_seed_px
     from seedmap.eval.detect_metrics import evaluate_detections
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
+    if out_json is not None:
+        outputs.check_output_file(Path(out_json), [dataset, detections_dir], overwrite,
+                                  lambda p: outputs.is_seedmap_json(p, "min_gt_area_px"), what="metrics file")
     ds = SeedmapDataset(dataset)
     if not (Path(dataset) / "gt" / "instances").is_dir():
         raise InputError("dataset has no ground truth (gt/instances/) to evaluate against", dataset)
@@ -119,5 +128,6 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
             pass
     d["dataset"] = str(Path(dataset).resolve())
     d["min_gt_area_px"] = float(min_gt_area)
-    atomic_write_text(out, json.dumps(d, indent=2, default=lambda x: float(x) if isinstance(x, np.floating) else x))
+    text = json.dumps(d, indent=2, default=lambda x: float(x) if isinstance(x, np.floating) else x)
+    outputs.write_file_atomic(out, text.encode("utf-8"))
     return m, out

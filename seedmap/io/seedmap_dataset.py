@@ -108,7 +108,7 @@ def frame_name(i: int) -> str:
 
 
 class DatasetWriter:
-    """Writes the layout into ``root`` (normally a temporary folder from ``atomic_output_dir``)."""
+    """Writes the layout into ``root`` (normally a temporary folder from ``seedmap.outputs.output_dir``)."""
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)

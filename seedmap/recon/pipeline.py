@@ -11,17 +11,19 @@ from __future__ import annotations
 import io
 import json
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from seedmap import outputs
 from seedmap.config import dump_config
 from seedmap.detect import detector_label
 from seedmap.errors import InputError
 from seedmap.geometry import transform_points
-from seedmap.io.atomic import atomic_output_dir, atomic_write_text
+from seedmap.io.atomic import atomic_write_text
 from seedmap.recon.config import ReconConfig
 from seedmap.recon.calibrate import CalibratedCount, calibrate_count, count_features
 from seedmap.recon.count import SeedCount, StereoKeypoints, count_density, count_multiview
@@ -36,6 +38,7 @@ from seedmap.recon.stereo import (
     seed_centres,
 )
 from seedmap.records import StereoCalib
+from seedmap.viz.rerun_log import check_rrd_path
 
 JOINTS_FILE = "joints.csv"
 ARM_FILE = "arm.yaml"
@@ -356,12 +359,13 @@ def seeds_csv_text(cnt: SeedCount) -> str:
     return _csv("seed,x,y,z,diameter_m,n_views,spread_m", rows, "%.6g")
 
 
-def write_results(rec: Reconstruction, out: Path, cfg: ReconConfig, metrics: dict, overwrite: bool = False) -> Path:
-    """Write the results folder atomically."""
+def write_results(rec: Reconstruction, out: Path, cfg: ReconConfig, metrics: dict, overwrite: bool = False,
+                  inputs: Sequence[str | Path | None] = ()) -> Path:
+    """Write the results folder atomically (a seedmap ``reconstruct`` output, never one of ``inputs``)."""
     from seedmap.io.trajectory import write_tum
     from seedmap.records import Trajectory
 
-    with atomic_output_dir(Path(out), overwrite=overwrite) as tmp:
+    with outputs.output_dir(Path(out), "reconstruct", inputs, overwrite) as tmp:
         dump_config(cfg, tmp / "config.yaml")
         write_ply(tmp / "cloud.ply", rec.cloud_xyz, rec.cloud_rgb, rec.cloud_label)
         atomic_write_text(tmp / "seeds.csv", seeds_csv_text(rec.count))
@@ -496,16 +500,17 @@ def gt_metrics(rec: Reconstruction, root: Path, min_area_px: int) -> dict | None
 
 
 def run_reconstruct(dataset: str | Path, out: str | Path, cfg: ReconConfig, overwrite: bool = False,
-                    progress: bool = True, rerun: Path | None = None) -> tuple[Path, dict]:
+                    progress: bool = True, rerun: Path | None = None,
+                    inputs: Sequence[str | Path | None] = ()) -> tuple[Path, dict]:
     """``seedmap reconstruct``: prepare, register (``cfg.registration.mode``), count, evaluate, write.
 
-    ``rerun``: also record per-view clouds, camera poses, merged cloud and seed centres to this ``.rrd``."""
-    from seedmap.io.atomic import check_output_parent
-
+    ``rerun``: also record per-view clouds, camera poses, merged cloud and seed centres to this ``.rrd``.
+    ``inputs``: more files the command read (``--config``); ``out`` and ``rerun`` are never one of them."""
     out = Path(out)
-    check_output_parent(out)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise InputError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+    ins = [dataset, *inputs, *scan_files(dataset, cfg), *outputs.dataset_option_files(getattr(cfg, "dataset", None))]
+    outputs.check_output_dir(out, "reconstruct", ins, overwrite)
+    if rerun is not None:  # the recording is written after the results: refuse a bad path before any work
+        check_rrd_path(rerun, [*ins, out], overwrite)
     prep = prepare_scan(dataset, cfg, progress=progress)
     rec = reconstruct(prep, cfg)
     metrics = base_metrics(rec)
@@ -513,7 +518,7 @@ def run_reconstruct(dataset: str | Path, out: str | Path, cfg: ReconConfig, over
     gt = gt_metrics(rec, Path(dataset), _min_area(cfg))
     if gt is not None:
         metrics["gt"] = gt
-    write_results(rec, out, cfg, metrics, overwrite=overwrite)
+    write_results(rec, out, cfg, metrics, overwrite=overwrite, inputs=ins)
     from seedmap.viz.run_hooks import recon_rerun
 
     recon_rerun(rerun, prep, rec)

@@ -19,6 +19,7 @@ flash gain for the scan's stand-off (docs/method/simulator.md); the gain used is
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal, Union
 
@@ -26,10 +27,11 @@ import numpy as np
 import yaml
 from pydantic import Field, field_validator, model_validator
 
+from seedmap import outputs
 from seedmap.config import ConfigModel, config_to_yaml, deep_merge
-from seedmap.errors import ConfigError, InputError
+from seedmap.errors import ConfigError
 from seedmap.geometry import invert, pose_to_tum
-from seedmap.io.atomic import atomic_output_dir, atomic_write_bytes, atomic_write_text, check_output_parent
+from seedmap.io.atomic import atomic_write_bytes, atomic_write_text
 from seedmap.io.seedmap_dataset import DatasetWriter, SeedmapDataset
 from seedmap.io.trajectory import write_tum
 from seedmap.records import Trajectory
@@ -112,12 +114,13 @@ def seed_surface_points(world, per_seed: int, rng: np.random.Generator) -> np.nd
     return (np.einsum("nij,nkj->nki", world.seed_axes, local) + c[:, None, :]).reshape(-1, 3).astype(np.float32)
 
 
-def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False, progress: bool = True) -> Path:
-    """Build one panicle, plan and 'execute' the arm scan, render every view and write the dataset."""
+def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False, progress: bool = True,
+                     inputs: Sequence[str | Path | None] = ()) -> Path:
+    """Build one panicle, plan and 'execute' the arm scan, render every view and write the dataset.
+
+    ``--overwrite`` replaces only a panicle scan seedmap simulated, never one of ``inputs`` (``--config``)."""
     out = Path(out)
-    check_output_parent(out)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise InputError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+    outputs.check_output_dir(out, "panicle-scan", inputs, overwrite)
     sim = cfg.sim.model_copy(update={"seed": cfg.seed})
     ss = np.random.SeedSequence(cfg.seed)
     s_world, s_arm, s_surf, s_frames = ss.spawn(4)
@@ -132,7 +135,7 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
     calib = sim.camera.calib()
     frame_seeds = s_frames.spawn(cfg.arm.views)
     T_render = invert(cap.panicle_motion) @ cap.T_world_cam_true
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+    with outputs.output_dir(out, "panicle-scan", inputs, overwrite) as tmp:
         w = DatasetWriter(tmp)
         w.write_calib(calib)
         w.write_times(cap.times)

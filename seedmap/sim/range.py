@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from seedmap import outputs
 from seedmap.config import config_to_yaml
-from seedmap.errors import InputError
 from seedmap.geometry import pose_to_tum
-from seedmap.io.atomic import atomic_output_dir, check_output_parent
 from seedmap.io.seedmap_dataset import DatasetWriter
 from seedmap.records import Trajectory
 from seedmap.sim.config import ALONG_WOBBLE, ANGLE_WOBBLE_DEG, HEIGHT_WOBBLE, LATERAL_WOBBLE, SimConfig
@@ -65,42 +65,21 @@ def _rngs(cfg: SimConfig) -> tuple[np.random.Generator, np.random.Generator, np.
     return np.random.default_rng(w), np.random.default_rng(t), f
 
 
-class _Reentered:
-    """Run the body inside an already-entered ``atomic_output_dir`` context (so that errors while
-    creating the folder can be reported as user errors)."""
-
-    def __init__(self, ctx, value) -> None:
-        self.ctx, self.value = ctx, value
-
-    def __enter__(self):
-        return self.value
-
-    def __exit__(self, *exc):
-        return self.ctx.__exit__(*exc)
-
-
 def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress: bool = True, *,
-                   preview: bool = False, stats: bool = False) -> Path:
+                   preview: bool = False, stats: bool = False, inputs: Sequence[str | Path | None] = ()) -> Path:
     """Render a whole range dataset into ``out`` atomically (nothing is left behind on failure).
 
     Writes images, calibration, times and the full ground truth (poses, seeds, panicle sway, instance
     masks/tables, the generator config). ``preview`` adds ``preview.png``; ``stats`` adds ``stats.json``.
     """
     out = Path(out)
-    check_output_parent(out)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise InputError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+    outputs.check_output_dir(out, "dataset", inputs, overwrite)  # --overwrite: only a dataset seedmap simulated
     calib = cfg.camera.calib()
     rng_world, rng_traj, frame_ss = _rngs(cfg)
     world = build_range_world(cfg, rng_world)
     traj = range_trajectory(cfg, rng_traj)
     frame_seeds = frame_ss.spawn(len(traj))
-    try:
-        ctx = atomic_output_dir(out, overwrite=overwrite)
-        tmp = ctx.__enter__()
-    except OSError as e:
-        raise InputError(f"cannot create the output folder ({e.strerror or e})", out) from None
-    with _Reentered(ctx, tmp):
+    with outputs.output_dir(out, "dataset", inputs, overwrite) as tmp:
         w = DatasetWriter(tmp)
         w.write_calib(calib)
         w.write_times(traj.timestamps)

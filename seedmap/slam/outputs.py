@@ -1,4 +1,4 @@
-"""Files of a SLAM result folder (written into the temporary folder of ``atomic_output_dir``)."""
+"""Files of a SLAM result folder (written into the temporary folder of ``seedmap.outputs.output_dir``)."""
 
 from __future__ import annotations
 

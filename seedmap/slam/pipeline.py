@@ -15,10 +15,12 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import asdict, dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from seedmap import outputs
 from seedmap.config import dump_config
 from seedmap.detect.base import ORACLE_DETECTORS, default_detector_name
 from seedmap.errors import SeedmapError
@@ -70,13 +72,15 @@ def run_slam(
     progress: bool = True,
     rerun: Path | None = None,
     html_report: bool = True,
+    inputs: Sequence[str | Path] = (),
 ) -> SlamResult:
     """Run the SLAM pipeline on ``dataset`` and write the results into ``out`` (None: no files).
 
     ``rerun``: also record the run (images, matches, poses, growing seed map) into this ``.rrd`` file.
-    ``html_report``: also write ``report.html`` (the benchmark skips it: ~2.7 s CPU per run)."""
+    ``html_report``: also write ``report.html`` (the benchmark skips it: ~2.7 s CPU per run).
+    ``inputs``: more files the command read (``--config``); ``out`` and ``rerun`` are never one of them or the
+    dataset (see :mod:`seedmap.outputs`)."""
     from seedmap.associate import make_matcher
-    from seedmap.io.atomic import check_output_parent
     from seedmap.slam.core import SemanticSlam
 
     cfg = config or SlamConfig()
@@ -86,11 +90,14 @@ def run_slam(
     detector = detector if detector is not None else (cfg.detector if cfg.detector is not None
                                                       else default_detector_name())
     cfg = cfg.model_copy(update={"matcher": matcher, "detector": detector})
+    ins = [dataset, *inputs, *outputs.dataset_option_files(cfg.dataset)]
     if out is not None:
         out = Path(out)
-        check_output_parent(out)
-        if out.exists() and any(out.iterdir()) and not overwrite:
-            raise SeedmapError("output folder exists and is not empty (pass --overwrite to replace it)", out)
+        outputs.check_output_dir(out, "slam", ins, overwrite)
+    if rerun is not None:
+        from seedmap.viz.rerun_log import check_rrd_path
+
+        check_rrd_path(rerun, [*ins, *([out] if out is not None else [])], overwrite)
     ds = cfg.dataset.open(dataset)
     calib = ds.calib
     gt = ds.gt_trajectory()
@@ -150,10 +157,9 @@ def run_slam(
     mpf = {k: np.asarray([r[k] for r in rows], np.int64) for k in ("frame", "stereo", "temporal", "inliers")}
     result = SlamResult(metrics, traj, out, mpf)
     if out is not None:
-        from seedmap.io.atomic import atomic_output_dir
         from seedmap.slam.outputs import write_outputs
 
-        with atomic_output_dir(out, overwrite=overwrite) as tmp:
+        with outputs.output_dir(out, "slam", ins, overwrite) as tmp:
             dump_config(cfg, tmp / "config.yaml")
             write_outputs(tmp, result, online, gt, lm, rows, cfg, dataset)
             if html_report:

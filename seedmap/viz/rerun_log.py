@@ -26,11 +26,14 @@ from __future__ import annotations
 import contextlib
 import os
 import weakref
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from seedmap.errors import InputError
+from seedmap.outputs import check_not_input, check_output_file, is_rerun_recording
 from seedmap.records import Detections, Matches, StereoCalib, Trajectory
 
 __all__ = ["RerunLogger", "check_rrd_path", "ellipse_polylines", "rrd_entity_paths"]
@@ -51,17 +54,21 @@ def _discard(rec: Any, tmp: Path) -> None:
         os.unlink(tmp)
 
 
-def check_rrd_path(path: str | Path) -> None:
-    """Fail early (one line) when a ``--rerun`` file cannot be written there; creates its folder."""
-    from seedmap.errors import InputError
-    from seedmap.io.atomic import check_output_parent
-
+def check_rrd_path(path: str | Path, inputs: Iterable[str | Path | None] = (), overwrite: bool = False) -> None:
+    """Fail early (one line) when a ``--rerun`` file cannot be written there, is (or lies inside) an input, or
+    exists and is not a recording seedmap wrote (replaced only with ``overwrite``); creates its folder."""
     path = Path(path)
-    if path.is_dir():
+    if path.is_dir() and not path.is_symlink():
+        check_not_input(path, inputs, "rerun recording")
         raise InputError("is a folder; --rerun wants a file name such as run.rrd", path)
-    check_output_parent(path.parent / ".probe")  # the folder must be creatable / writable
+    check_output_file(path, inputs, overwrite, is_rerun_recording, what="rerun recording")
+    _probe(path)
+
+
+def _probe(path: Path) -> None:
+    """Create the recording's folder and check that a file can be written there."""
     probe = path.with_name(f".{path.name}.{os.getpid()}.probe")
-    try:  # os.access() in check_output_parent says yes to root where the file system refuses (/proc, ro mounts)
+    try:  # os.access() says yes to root where the file system refuses (/proc, ro mounts)
         path.parent.mkdir(parents=True, exist_ok=True)
         probe.touch()
         probe.unlink()
@@ -103,7 +110,7 @@ class RerunLogger:
             return
         import rerun as rr
 
-        check_rrd_path(self.path)
+        _probe(self.path)  # the command checked the path against its inputs and --overwrite
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self._rec = rr.RecordingStream(application_id)
         self._rec.save(str(self._tmp))

@@ -210,9 +210,9 @@ def add(id: str, group: str, fn: Callable[[Assets, Path], Setup]) -> None:
 
 
 def copy_range(a: Assets, t: Path, name: str = "ds", gt: bool = True) -> Path:
-    """A copy of the simulated range (``gt=False``: a user's own recording, no ground truth)."""
+    """A copy of the simulated range (``gt=False``: a user's own recording, no ground truth and no output marker)."""
     dst = t / name
-    shutil.copytree(a.range, dst, ignore=None if gt else shutil.ignore_patterns("gt"))
+    shutil.copytree(a.range, dst, ignore=None if gt else shutil.ignore_patterns("gt", ".seedmap-output.json"))
     return dst
 
 

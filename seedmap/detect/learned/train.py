@@ -15,12 +15,14 @@ from __future__ import annotations
 import json
 import time
 from collections import OrderedDict
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
+from seedmap import outputs
 from seedmap.config import ConfigModel, config_to_yaml
 from seedmap.detect.labels import LabelledImage
 from seedmap.detect.learned.crops import crop_to_full, extract_crops
@@ -140,12 +142,11 @@ def _to_tensor(img: np.ndarray) -> torch.Tensor:
 class _Run:
     """Output folder bookkeeping shared by both trainers."""
 
-    def __init__(self, out: Path, kind: str, resume: bool, overwrite: bool) -> None:
-        from seedmap.io.atomic import check_output_parent
-
+    def __init__(self, out: Path, kind: str, resume: bool, overwrite: bool,
+                 inputs: Sequence[str | Path | None] = ()) -> None:
         self.out = Path(out)
         self.kind = kind
-        check_output_parent(self.out)
+        outputs.check_resume_dir(self.out, "training", inputs, strict=False)  # never an input, a dataset, a result
         self.ckpt = self.out / f"{kind}_checkpoint.safetensors"
         self.final = self.out / f"{kind}.safetensors"
         self.log = self.out / f"{kind}_metrics.jsonl"
@@ -154,7 +155,7 @@ class _Run:
                              self.out)
         if resume and not self.ckpt.exists():
             raise InputError(f"nothing to resume: {self.ckpt.name} not found", self.out)
-        self.out.mkdir(parents=True, exist_ok=True)
+        outputs.mark(self.out, "training")
         if not resume and self.log.exists():
             self.log.unlink()
 
@@ -243,11 +244,12 @@ def detector_val_metrics(model: nn.Module, arch: DetectorArch, items: list[tuple
             "val_f1": 2 * p * r / (p + r) if p + r > 0 else 0.0}
 
 
-def _start_run(kind: str, cfg, source, val_source, out: Path, resume: bool, overwrite: bool):
+def _start_run(kind: str, cfg, source, val_source, out: Path, resume: bool, overwrite: bool,
+               inputs: Sequence[str | Path | None] = ()):
     """Shared start of a training run: threads, run folder + config, train/validation split, torch seed."""
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
-    run = _Run(out, kind, resume, overwrite)
+    run = _Run(out, kind, resume, overwrite, inputs)
     atomic_write_text(run.out / f"{kind}_train_config.yaml", config_to_yaml(cfg))
     if val_source is None:
         tr_idx, va_idx = split_indices(len(source), cfg.val_fraction)
@@ -261,10 +263,12 @@ def _start_run(kind: str, cfg, source, val_source, out: Path, resume: bool, over
 
 
 def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, val_source=None,
-                   resume: bool = False, overwrite: bool = False, progress: bool = True) -> Path:
+                   resume: bool = False, overwrite: bool = False, progress: bool = True,
+                   inputs: Sequence[str | Path | None] = ()) -> Path:
     """Train Faster R-CNN (VGG16 stride-8) on ``source`` (labelled images); returns the weights path."""
     cfg = cfg or DetectorTrainConfig()
-    run, tr_idx, va_idx, val_source = _start_run("detector", cfg, source, val_source, out, resume, overwrite)
+    run, tr_idx, va_idx, val_source = _start_run("detector", cfg, source, val_source, out, resume, overwrite,
+                                                      inputs)
     model = build_frcnn(cfg.arch)
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=DET_WEIGHT_DECAY)
@@ -399,10 +403,12 @@ def export_segmenter_onnx(gen: nn.Module, arch: SegmenterArch, path: Path) -> Pa
 
 
 def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, val_source=None,
-                    resume: bool = False, overwrite: bool = False, progress: bool = True) -> Path:
+                    resume: bool = False, overwrite: bool = False, progress: bool = True,
+                    inputs: Sequence[str | Path | None] = ()) -> Path:
     """Train pix2pix (U-Net + PatchGAN, GAN + λ·L1) on box crops of GT instances."""
     cfg = cfg or SegmenterTrainConfig()
-    run, tr_idx, va_idx, val_source = _start_run("segmenter", cfg, source, val_source, out, resume, overwrite)
+    run, tr_idx, va_idx, val_source = _start_run("segmenter", cfg, source, val_source, out, resume, overwrite,
+                                                      inputs)
     arch = cfg.arch
     gen = UNetGenerator(arch.crop_size, arch.ngf)
     disc = PatchDiscriminator(arch.ndf)

@@ -13,6 +13,7 @@ from concurrent.futures import FIRST_COMPLETED, Future, wait
 from pathlib import Path
 from typing import Any, Sequence
 
+from seedmap import outputs
 from seedmap.associate.features import KINDS as FEATURE_KINDS
 from seedmap.config import dump_config
 from seedmap.errors import ConfigError, SeedmapError
@@ -27,6 +28,7 @@ from seedmap.eval.benchmark.spec import (
     safe_name,
 )
 from seedmap.eval.published import PUBLISHED_MDM, published_key
+from seedmap.io import detect_format, open_dataset
 from seedmap.io.atomic import atomic_write_text
 from seedmap.progress import Progress
 from seedmap.workers import process_pool
@@ -240,23 +242,22 @@ def run_benchmark(
     Resumable: finished datasets and finished result folders are reused. Returns the records in
     (range, method) order.
     """
-    from seedmap.io.atomic import check_output_parent
-
     out = Path(out)
-    check_output_parent(out)
-    out.mkdir(parents=True, exist_ok=True)
-    dump_config(cfg, out / "config.yaml")
     if not ranges:
         raise ConfigError("the benchmark has no datasets to run")
-    t_start = time.perf_counter()
-
     per_range: dict[str, list[MethodSpec]] = {}
-    for spec in ranges:
+    for spec in ranges:  # names and datasets are checked before the output folder exists
+        if spec.scenario == "user" and detect_format(spec.dataset) is None:
+            open_dataset(spec.dataset)  # raises the loader's one-line "no loader recognises this path"
         if methods is not None:
             per_range[spec.name] = list(methods)
         else:
             has_gt = spec.scenario != "user" or dataset_has_gt(spec.dataset)
             per_range[spec.name] = default_methods(cfg, with_gt=has_gt)
+    # a benchmark folder of its own is resumed; anything else (the user's folder, a dataset) is refused
+    outputs.resume_dir(out, "benchmark", [s.dataset for s in ranges if s.scenario == "user"])
+    dump_config(cfg, out / "config.yaml")
+    t_start = time.perf_counter()
 
     def missing(spec: RangeSpec) -> list[MethodSpec]:
         """Available methods of ``spec`` without a finished result folder."""

@@ -12,6 +12,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from seedmap import outputs
 from seedmap.associate.features import KINDS as FEATURE_KINDS
 from seedmap.associate.features import FeatureMatcherConfig
 from seedmap.config import dump_config
@@ -79,7 +80,7 @@ def tune_baselines(
 
     cfg = cfg or BenchmarkConfig(feature_tuning={})
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    outputs.resume_dir(out, "tune", [dataset])  # its own folder is resumed; the user's folder or the data refused
     dump_config(cfg, out / "config.yaml")
     spec = RangeSpec(safe_name(Path(dataset).resolve().name), "tune", Path(dataset))
     avail = available_kinds()
