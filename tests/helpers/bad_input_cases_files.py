@@ -448,11 +448,11 @@ def _path_case(cmd: list, what: str):
     return build
 
 
-for _name, _cmd in {"slam": ["slam", "P", "--out", "OUT", "-q"],
+for _name, _cmd in {"slam": ["slam", "P", "--out", "OUT", "-q", "--detector", "gt"],
                     "detect": ["detect", "P", "--out", "OUT", "--detector", "fast"],
                     "reconstruct": ["reconstruct", "P", "--out", "OUT", "-q"],
                     "eval-associate": ["eval", "associate", "P"],
-                    "batch": ["batch", "P", "--out", "OUT", "-q"],
+                    "batch": ["batch", "P", "--out", "OUT", "-q", "--detector", "gt"],
                     "benchmark-run": ["benchmark", "run", "P", "--out", "OUT", "--methods", "orb", "--workers", "1"],
                     "train-fast-cnn": ["train", "fast-cnn", "P", "--out", "OUT", "--steps", "1"]}.items():
     for _w in ("missing", "file", "empty-folder", "user-folder"):
@@ -464,7 +464,7 @@ def _(a, t):
     field = t / "field"
     r1 = copy_range(a, field, "r1")
     m_img_corrupt(r1)
-    return Setup(["batch", field, "--out", t / "out", "-q"], [field], t / "out",
+    return Setup(["batch", field, "--out", t / "out", "-q", "--detector", "gt"], [field], t / "out",
                  (str(r1 / "left" / "000001.png"), "000001.png"), record_ok=True)
 
 

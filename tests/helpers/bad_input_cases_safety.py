@@ -39,7 +39,7 @@ def _cmd_argv(a: Assets, t: Path, cmd: str) -> tuple[list, list[Path], Path | No
         return ["detect", ds, "--out", out, "--detector", "fast"], [ds], out, a.det / "config.yaml"
     if cmd == "slam":
         ds = copy_range(a, t)
-        return ["slam", ds, "--out", out, "-q"], [ds], out, a.slam / "config.yaml"
+        return ["slam", ds, "--out", out, "-q", "--detector", "gt"], [ds], out, a.slam / "config.yaml"
     if cmd == "eval-associate":
         ds = copy_range(a, t)
         return ["eval", "associate", ds, "--out", out], [ds], out, a.slam / "config.yaml"
@@ -56,7 +56,7 @@ def _cmd_argv(a: Assets, t: Path, cmd: str) -> tuple[list, list[Path], Path | No
     if cmd == "batch":
         field = t / "field"
         copy_range(a, field, "r1")
-        return ["batch", field, "--out", out, "-q"], [field], out, a.slam / "config.yaml"
+        return ["batch", field, "--out", out, "-q", "--detector", "gt"], [field], out, a.slam / "config.yaml"
     raise KeyError(cmd)
 
 
@@ -112,7 +112,7 @@ for _c in CONFIG_COMMANDS:
 @case("slam-set-stereo_max_dy_px-nan", "config")
 def _(a, t):
     ds = copy_range(a, t)
-    return Setup(["slam", ds, "--out", t / "out", "-q", "--set", "gates.stereo_max_dy_px=nan"], [ds], t / "out",
+    return Setup(["slam", ds, "--out", t / "out", "-q", "--detector", "gt", "--set", "gates.stereo_max_dy_px=nan"], [ds], t / "out",
                  ("gates.stereo_max_dy_px",))
 
 
@@ -120,7 +120,7 @@ def _(a, t):
 
 
 def _slam(ds: Path, out: Path, *extra) -> list:
-    return ["slam", ds, "--out", out, "-q", *extra]
+    return ["slam", ds, "--out", out, "-q", "--detector", "gt", *extra]
 
 
 @case("overwrite-slam-out-user-folder", "data-loss")
@@ -302,21 +302,21 @@ def _(a, t):
 def _(a, t):
     field, m = t / "field", mine(t)
     copy_range(a, field, "r1")
-    return Setup(["batch", field, "--out", m, "-q"], [field, m], m, (str(m),))
+    return Setup(["batch", field, "--out", m, "-q", "--detector", "gt"], [field, m], m, (str(m),))
 
 
 @case("batch-out-is-the-field", "data-loss")
 def _(a, t):
     field = t / "field"
     copy_range(a, field, "r1")
-    return Setup(["batch", field, "--out", field, "-q"], [field], field, (str(field),))
+    return Setup(["batch", field, "--out", field, "-q", "--detector", "gt"], [field], field, (str(field),))
 
 
 @case("batch-out-inside-a-range", "data-loss")
 def _(a, t):
     field = t / "field"
     r1 = copy_range(a, field, "r1")
-    return Setup(["batch", field, "--out", r1 / "left", "-q"], [field], r1 / "left", (str(r1 / "left"), str(r1)))
+    return Setup(["batch", field, "--out", r1 / "left", "-q", "--detector", "gt"], [field], r1 / "left", (str(r1 / "left"), str(r1)))
 
 
 @case("benchmark-run-out-existing-user-folder", "data-loss")
@@ -417,7 +417,7 @@ def _(a, t):
 
 
 OUT_COMMANDS: dict[str, Callable[[Assets, Path, Path], tuple[list, list[Path]]]] = {
-    "slam": lambda a, t, o: ((ds := copy_range(a, t)) and ["slam", ds, "--out", o, "-q"], [ds]),
+    "slam": lambda a, t, o: ((ds := copy_range(a, t)) and ["slam", ds, "--out", o, "-q", "--detector", "gt"], [ds]),
     "detect": lambda a, t, o: ((ds := copy_range(a, t)) and ["detect", ds, "--out", o, "--detector", "fast"],
                                [ds]),
     "simulate-range": lambda a, t, o: (["simulate", "range", "--out", o, "-q", "--length", "0.2", "--set",
@@ -425,7 +425,7 @@ OUT_COMMANDS: dict[str, Callable[[Assets, Path, Path], tuple[list, list[Path]]]]
     "reconstruct": lambda a, t, o: ((s := copy_of(a.scan, t / "scan")) and ["reconstruct", s, "--out", o, "-q"],
                                     [s]),
     "count": lambda a, t, o: ((r := copy_of(a.recon, t / "rec")) and ["count", r, "--out", o], [r]),
-    "batch": lambda a, t, o: ((f := t / "field") and copy_range(a, f, "r1") and ["batch", f, "--out", o, "-q"],
+    "batch": lambda a, t, o: ((f := t / "field") and copy_range(a, f, "r1") and ["batch", f, "--out", o, "-q", "--detector", "gt"],
                               [t / "field"]),
 }
 
