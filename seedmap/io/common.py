@@ -12,6 +12,7 @@ import numpy as np
 from seedmap.errors import InputError
 from seedmap.io.calibration import RectifyMaps, StereoRig, check_image_size, rectify
 from seedmap.io.images import imdecode_quiet
+from seedmap.io.text import read_text
 from seedmap.records import StereoCalib, StereoFrame
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
@@ -119,10 +120,7 @@ def read_times_txt(path: Path, n: int | None = None) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError("times file not found", path)
-    try:
-        text = path.read_text()
-    except (UnicodeDecodeError, OSError):
-        raise InputError("times file is not text", path) from None
+    text = read_text(path, "times file")
     vals = []
     for i, line in enumerate(text.splitlines(), 1):
         s = line.strip()
@@ -135,6 +133,8 @@ def read_times_txt(path: Path, n: int | None = None) -> np.ndarray:
             vals.append(float(parts[0]))
         except ValueError:
             raise InputError(f"line {i}: {parts[0]!r} is not a number", path) from None
+    if not vals:
+        raise InputError("times file is empty (one timestamp in seconds per frame)", path)
     ts = check_timestamps(np.asarray(vals, float), path)
     if n is not None and len(ts) != n:
         raise InputError(f"has {len(ts)} timestamps but there are {n} stereo pairs (one line per pair)", path)

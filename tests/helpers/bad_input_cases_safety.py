@@ -36,7 +36,7 @@ def _cmd_argv(a: Assets, t: Path, cmd: str) -> tuple[list, list[Path], Path | No
                 out, a.scan / "gt" / "scan.yaml")
     if cmd == "detect":
         ds = copy_range(a, t)
-        return ["detect", ds, "--out", out, "--detector", "fast-classic"], [ds], out, a.det / "config.yaml"
+        return ["detect", ds, "--out", out, "--detector", "fast"], [ds], out, a.det / "config.yaml"
     if cmd == "slam":
         ds = copy_range(a, t)
         return ["slam", ds, "--out", out, "-q"], [ds], out, a.slam / "config.yaml"
@@ -161,7 +161,7 @@ def _(a, t):
 @case("overwrite-detect-out-user-folder", "data-loss")
 def _(a, t):
     ds, m = copy_range(a, t), mine(t)
-    return Setup(["detect", ds, "--out", m, "--detector", "fast-classic", "--overwrite"], [ds, m], m, (str(m),))
+    return Setup(["detect", ds, "--out", m, "--detector", "fast", "--overwrite"], [ds, m], m, (str(m),))
 
 
 @case("overwrite-reconstruct-out-user-folder", "data-loss")
@@ -185,7 +185,7 @@ def _(a, t):
 @case("overwrite-detect-out-is-input-dataset", "data-loss")
 def _(a, t):
     ds = copy_range(a, t)
-    return Setup(["detect", ds, "--out", ds, "--detector", "fast-classic", "--overwrite"], [ds], ds, (str(ds),))
+    return Setup(["detect", ds, "--out", ds, "--detector", "fast", "--overwrite"], [ds], ds, (str(ds),))
 
 
 @case("overwrite-reconstruct-out-is-input-scan", "data-loss")
@@ -210,7 +210,7 @@ def _(a, t):
 def _(a, t):
     ds = copy_range(a, t)
     out = ds / "gt" / "masks"
-    return Setup(["detect", ds, "--out", out, "--detector", "fast-classic", "--overwrite"], [ds], out,
+    return Setup(["detect", ds, "--out", out, "--detector", "fast", "--overwrite"], [ds], out,
                  (str(out), str(ds)))
 
 
@@ -257,7 +257,7 @@ def _(a, t):
 @case("overwrite-detect-out-is-a-slam-result", "data-loss")
 def _(a, t):
     ds, res = copy_range(a, t), copy_of(a.slam, t / "slamres")
-    return Setup(["detect", ds, "--out", res, "--detector", "fast-classic", "--overwrite"], [ds, res], res,
+    return Setup(["detect", ds, "--out", res, "--detector", "fast", "--overwrite"], [ds, res], res,
                  (str(res),))
 
 
@@ -418,7 +418,7 @@ def _(a, t):
 
 OUT_COMMANDS: dict[str, Callable[[Assets, Path, Path], tuple[list, list[Path]]]] = {
     "slam": lambda a, t, o: ((ds := copy_range(a, t)) and ["slam", ds, "--out", o, "-q"], [ds]),
-    "detect": lambda a, t, o: ((ds := copy_range(a, t)) and ["detect", ds, "--out", o, "--detector", "fast-classic"],
+    "detect": lambda a, t, o: ((ds := copy_range(a, t)) and ["detect", ds, "--out", o, "--detector", "fast"],
                                [ds]),
     "simulate-range": lambda a, t, o: (["simulate", "range", "--out", o, "-q", "--length", "0.2", "--set",
                                         "camera.scale=0.1"], []),
@@ -469,7 +469,7 @@ def _(a, t):
 @case("detect-full-disk", "output")
 def _(a, t):
     ds = copy_range(a, t)
-    return Setup(["detect", ds, "--out", t / "out", "--detector", "fast-classic"], [ds], t / "out",
+    return Setup(["detect", ds, "--out", t / "out", "--detector", "fast"], [ds], t / "out",
                  (str(t / "out"), "space", "large"), fsize=256 << 10)
 
 
