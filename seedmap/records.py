@@ -39,11 +39,8 @@ class StereoCalib:
             raise ConfigError(f"focal lengths must be positive and finite, got fx={self.fx!r}, fy={self.fy!r}")
         if self.width <= 0 or self.height <= 0:
             raise ConfigError(f"image size must be positive, got {self.width}x{self.height}")
-        # the principal point lies in the image, or near it (half an image) after an off-centre rectification
-        w, h = self.width, self.height
-        if not (-0.5 * w <= self.cx <= 1.5 * w and -0.5 * h <= self.cy <= 1.5 * h):
-            raise ConfigError(f"principal point (cx={self.cx!r}, cy={self.cy!r}) is outside the "
-                              f"{self.width}x{self.height} image")
+        if not (np.isfinite(self.cx) and np.isfinite(self.cy)):
+            raise ConfigError(f"principal point must be finite, got cx={self.cx!r}, cy={self.cy!r}")
 
     @property
     def K(self) -> np.ndarray:

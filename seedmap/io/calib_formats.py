@@ -178,6 +178,15 @@ def _rig_from_rect(K1, D1, R1, P1, K2, D2, R2, P2, size1, size2, model: str, pat
 # ----------------------------------------------------------------------------------------------
 
 
+def check_principal_point(calib: StereoCalib, path: Path) -> StereoCalib:
+    """A calibration file's principal point lies in its own image, or near it (half an image) after an
+    off-centre rectification; ``cx=-5000`` ran to the end with every frame lost."""
+    w, h = calib.width, calib.height
+    if not (-0.5 * w <= calib.cx <= 1.5 * w and -0.5 * h <= calib.cy <= 1.5 * h):
+        raise InputError(f"principal point (cx={calib.cx:g}, cy={calib.cy:g}) is outside the {w}x{h} image", path)
+    return calib
+
+
 def parse_seedmap_calib(d: dict, path: Path) -> StereoRig:
     """seedmap's own rectified ``calib.yaml``."""
     b = _num(d, "baseline_m", path)
@@ -192,7 +201,7 @@ def parse_seedmap_calib(d: dict, path: Path) -> StereoRig:
         raise
     except SeedmapError as e:
         raise InputError(str(e), path) from None
-    return StereoRig.from_calib(calib, source=path)
+    return StereoRig.from_calib(check_principal_point(calib, path), source=path)
 
 
 def _ros_camera(d: dict, path: Path) -> tuple:

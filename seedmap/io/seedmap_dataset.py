@@ -34,6 +34,7 @@ import yaml
 
 from seedmap.errors import ConfigError, InputError
 from seedmap.io.atomic import atomic_write_text
+from seedmap.io.calib_formats import check_principal_point
 from seedmap.io.common import read_times_txt
 from seedmap.io.images import read_label_png, read_rgb, write_png
 from seedmap.io.registry import detect_format, register_loader
@@ -183,7 +184,7 @@ def read_calib_yaml(path: Path) -> StereoCalib:
     if missing:
         raise InputError(f"calibration lacks {', '.join(missing)}", path)
     try:
-        return StereoCalib.from_dict(d)
+        return check_principal_point(StereoCalib.from_dict(d), path)
     except (TypeError, ValueError) as e:
         raise InputError(f"bad calibration value ({e})", path) from None
     except InputError:
