@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from seedmap.errors import InputError, SeedmapError
-from seedmap.io.common import read_times_txt
+from seedmap.io.timestamps import read_times_txt
 from seedmap.io.options import DatasetOptions
 from seedmap.io.seedmap_dataset import DatasetWriter, SeedmapDataset, read_calib_yaml
 from seedmap.io.stereo_order import check_stereo_order, negative_disparity_fraction

@@ -35,10 +35,10 @@ import yaml
 from seedmap.errors import ConfigError, InputError
 from seedmap.io.atomic import atomic_write_text
 from seedmap.io.calib_formats import check_principal_point
-from seedmap.io.common import read_times_txt
 from seedmap.io.images import read_label_png, read_rgb, write_png
 from seedmap.io.registry import detect_format, register_loader
 from seedmap.io.text import read_table, read_text
+from seedmap.io.timestamps import read_times_txt
 from seedmap.io.trajectory import read_tum, write_tum
 from seedmap.records import StereoCalib, StereoFrame, Trajectory
 

@@ -131,6 +131,8 @@ def count_domain(cfg: ReconConfig) -> CountDomain:
     d = dcfg.model_dump()
     if isinstance(d.get("cnn"), dict):
         d["cnn"].pop("weights", None)  # the file's hash stands for it (a path differs between machines)
+    if isinstance(d.get("dataset"), dict):
+        d["dataset"].pop("allow_fewer_times", None)  # which frames are read, not how seeds are detected
     return CountDomain(detector=cfg.detector, weights_sha256=weights, detector_config_sha256=_sha(d),
                        count_config_sha256=_sha(counter_settings(cfg)))
 
