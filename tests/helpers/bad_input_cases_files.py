@@ -464,7 +464,7 @@ def _(a, t):
     field = t / "field"
     r1 = copy_range(a, field, "r1")
     m_img_corrupt(r1)
-    return Setup(["batch", field, "--out", t / "out", "-q"], [field], t / "out",
+    return Setup(["batch", field, "--out", t / "out", "-q", "--detector", "gt"], [field], t / "out",
                  (str(r1 / "left" / "000001.png"), "000001.png"), record_ok=True)
 
 
