@@ -50,14 +50,3 @@ def read_table(path: str | Path, what: str, skip_header: int = 1, delimiter: str
         row = int(np.flatnonzero(~np.all(np.isfinite(a), axis=1))[0])
         raise InputError(f"{what} has NaN or inf (data row {row + 1})", path)
     return a
-
-
-def check_finite_positive(value: float, what: str, where: str | Path | None = None) -> float:
-    """``value`` as a float when it is finite and > 0, else a one-line error."""
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{what} must be a number, got {value!r}", where) from None
-    if not (np.isfinite(x) and x > 0):
-        raise InputError(f"{what} must be finite and positive, got {value!r}", where)
-    return x
