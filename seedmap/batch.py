@@ -127,8 +127,8 @@ def summarize_result_dir(result: str | Path, rel: str, wall_s: float | None = No
     """The summary row of a finished ``seedmap slam`` result folder (metrics.json + landmarks.csv)."""
     result = Path(result)
     try:
-        m = json.loads((result / "metrics.json").read_text())
-    except (OSError, json.JSONDecodeError) as e:
+        m = json.loads((result / "metrics.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:  # ValueError: not JSON, or not UTF-8
         raise InputError(f"unreadable metrics.json ({e.__class__.__name__})", result / "metrics.json") from None
     seeds = panicles = None
     lm = result / "landmarks.csv"

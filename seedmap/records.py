@@ -35,10 +35,12 @@ class StereoCalib:
     def __post_init__(self) -> None:
         if not (self.baseline > 0 and np.isfinite(self.baseline)):
             raise ConfigError(f"stereo baseline must be positive and finite, got {self.baseline!r} m")
-        if not (self.fx > 0 and self.fy > 0):
-            raise ConfigError(f"focal lengths must be positive, got fx={self.fx!r}, fy={self.fy!r}")
+        if not (self.fx > 0 and self.fy > 0 and np.isfinite(self.fx) and np.isfinite(self.fy)):
+            raise ConfigError(f"focal lengths must be positive and finite, got fx={self.fx!r}, fy={self.fy!r}")
         if self.width <= 0 or self.height <= 0:
             raise ConfigError(f"image size must be positive, got {self.width}x{self.height}")
+        if not (np.isfinite(self.cx) and np.isfinite(self.cy)):
+            raise ConfigError(f"principal point must be finite, got cx={self.cx!r}, cy={self.cy!r}")
 
     @property
     def K(self) -> np.ndarray:

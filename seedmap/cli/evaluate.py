@@ -42,6 +42,8 @@ def eval_detect_cmd(
         raise SeedmapError(f"--matching must be greedy or hungarian, got {matching!r}")
     if not 0.0 < iou <= 1.0:  # --iou 2 scored every detection a miss, exit 0
         raise SeedmapError(f"--iou must be in (0, 1], got {iou:g}")
+    if min_gt_area is not None and min_gt_area < 0:
+        raise SeedmapError(f"--min-gt-area must be >= 0 px, got {min_gt_area}")
     m, path = run_eval_detect(dataset, detections, out, iou, matching, min_gt_area, overwrite=overwrite)
 
     def _f(x: Optional[float], nd: int = 3) -> str:
@@ -83,6 +85,8 @@ def eval_associate_cmd(
 
     from seedmap.eval.associate_metrics import evaluate_association, write_report
 
+    if max_frames is not None and max_frames < 1:
+        raise SeedmapError(f"--max-frames must be >= 1, got {max_frames}")
     cfg = slam_config(config, set_)
     if out is not None:
         _check_json_out(out, [dataset, config, *dataset_option_files(cfg.dataset)], overwrite, "temporal")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import List, Optional
 
@@ -80,7 +81,7 @@ def train_count_calibration_cmd(
     from rich.progress import track
 
     from seedmap.config import load_config
-    from seedmap.recon.calibrate import count_domain, fit_count_calibration, save_count_calibration
+    from seedmap.recon.calibrate import count_domain, fit_count_calibration, read_true_counts, save_count_calibration
     from seedmap.recon.config import ReconConfig
     from seedmap.recon.pipeline import recount_calibrated
 
@@ -92,7 +93,7 @@ def train_count_calibration_cmd(
     names = tuple(f.strip() for f in features.split(",") if f.strip())
     truth_by: dict[str, float] = {}
     if counts is not None:
-        truth_by = _read_true_counts(counts)
+        truth_by = read_true_counts(counts)
     feats, truth, samples, domain = [], [], [], None
     for r in track(results, description="counting", transient=True):
         cfg_path = r / "config.yaml"
@@ -129,33 +130,6 @@ def train_count_calibration_cmd(
                f"calibrated {f['calibrated_mape_pct']:.2f} % (leave-one-out {f['loo_mape_pct']:.2f} %)")
 
 
-def _read_true_counts(path: Path) -> dict[str, float]:
-    """``result,count`` rows (a header row is skipped) -> {result: count}."""
-    import csv
-
-    if not path.is_file():
-        raise SeedmapError(f"{path}: counts file not found")
-    out: dict[str, float] = {}
-    with path.open(newline="") as fh:
-        for i, row in enumerate(csv.reader(fh)):
-            if not row or not "".join(row).strip():
-                continue
-            if len(row) != 2:
-                raise SeedmapError(f"{path}: line {i + 1}: expected `result,count`, got {len(row)} fields")
-            try:
-                v = float(row[1])
-            except ValueError:
-                if i == 0:
-                    continue  # header
-                raise SeedmapError(f"{path}: line {i + 1}: count {row[1]!r} is not a number") from None
-            if not v > 0:
-                raise SeedmapError(f"{path}: line {i + 1}: count must be > 0, got {row[1]}")
-            out[row[0].strip().rstrip("/")] = v
-    if not out:
-        raise SeedmapError(f"{path}: no `result,count` rows")
-    return out
-
-
 @train_app.command("cnn-refiner")
 def train_cnn_refiner_cmd(
     data: List[Path] = typer.Argument(..., help="Training data: simulated datasets with GT masks (e.g. data/det_s40) "
@@ -187,6 +161,10 @@ def train_cnn_refiner_cmd(
     from seedmap.detect.train_refiner import CnnRefinerTrainConfig, train_cnn_refiner, validate
     from seedmap.io.atomic import atomic_write_text
 
+    if steps < 1:
+        raise SeedmapError(f"--steps must be >= 1, got {steps}")
+    if not 0.0 < candidates < 1.0:  # a sigmoid peak score: 2 gave 'no CNN peaks in the training datasets'
+        raise SeedmapError(f"--candidates must be a peak score in (0, 1), got {candidates:g}")
     for d in data:
         if not (d.is_dir() or (d.is_file() and d.suffix.lower() == ".json")):
             raise SeedmapError(f"{d}: dataset folder or COCO .json file not found")
@@ -250,6 +228,11 @@ def train_fast_cnn_cmd(
     require_torch()
     from seedmap.detect.train_cnn import CnnTrainConfig, train_cnn
 
+    for name, v in (("--steps", steps), ("--batch", batch), ("--crop", crop)):
+        if v < 1:
+            raise SeedmapError(f"{name} must be >= 1, got {v}")
+    if not (math.isfinite(lr) and lr > 0):
+        raise SeedmapError(f"--lr must be a finite number > 0, got {lr:g}")
     for d in list(data) + list(val or []):
         if d.is_file() and d.suffix.lower() == ".json":  # said 'dataset folder not found' of an existing file
             raise SeedmapError(f"{d}: fast-cnn trains on simulated datasets (GT masks); COCO labels are read by "

@@ -28,6 +28,7 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_write_text
+from seedmap.io.text import read_text
 from seedmap.records import Detections
 
 JSONL_NAME = "detections.jsonl"
@@ -63,7 +64,7 @@ def read_detections(path: str | Path) -> dict[tuple[int, str], Detections]:
     if not p.is_file():
         raise InputError(f"no {JSONL_NAME} found (write one with `seedmap detect`)", p)
     out: dict[tuple[int, str], Detections] = {}
-    for ln, line in enumerate(p.read_text().splitlines(), 1):
+    for ln, line in enumerate(read_text(p, JSONL_NAME).splitlines(), 1):
         if not line.strip():
             continue
         try:
@@ -81,9 +82,12 @@ def detection_image_sizes(path: str | Path) -> set[tuple[int, int]]:
     if p.is_dir():
         p = p / JSONL_NAME
     sizes: set[tuple[int, int]] = set()
-    for line in p.read_text().splitlines():
+    for line in read_text(p, JSONL_NAME).splitlines():
         if line.strip():
-            rec = json.loads(line)
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # read_detections names the bad line
             w, h = int(rec.get("width", 0) or 0), int(rec.get("height", 0) or 0)
             if w > 0 and h > 0:
                 sizes.add((w, h))

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.errors import InputError
+from seedmap.io.text import read_text
 from seedmap.io.images import read_rgb
 
 
@@ -173,7 +174,7 @@ class CocoSource:
         if not p.is_file():
             raise InputError("COCO annotation file not found", p)
         try:
-            d = json.loads(p.read_text())
+            d = json.loads(read_text(p, "COCO annotation file"))
         except json.JSONDecodeError as e:
             raise InputError(f"not valid JSON ({e.msg} at line {e.lineno})", p) from None
         if not isinstance(d, dict) or "images" not in d or "annotations" not in d:

@@ -123,8 +123,8 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
     meta_p = Path(detections_dir) / "meta.json"
     if meta_p.is_file():
         try:
-            d["detector"] = json.loads(meta_p.read_text()).get("detector")
-        except json.JSONDecodeError:
+            d["detector"] = json.loads(meta_p.read_text(encoding="utf-8")).get("detector")
+        except ValueError:  # not JSON, or not UTF-8 text: the detector name is left out
             pass
     d["dataset"] = str(Path(dataset).resolve())
     d["min_gt_area_px"] = float(min_gt_area)

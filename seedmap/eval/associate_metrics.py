@@ -108,6 +108,7 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
     """Run the matcher over ``dataset`` and score stereo and temporal matches per frame."""
     from seedmap.associate import make_matcher
     from seedmap.io import open_dataset
+    from seedmap.io.stereo_order import check_stereo_order
     from seedmap.slam.config import SlamConfig
     from seedmap.slam.pipeline import _detector_for, _progress
 
@@ -123,7 +124,10 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
     prev = None
     with _progress(progress, n, f"associate {matcher}") as advance:
         for i in range(n):
-            f = m.features(ds[i])
+            frame = ds[i]
+            if i == 0:
+                check_stereo_order(frame.left, frame.right, dataset)
+            f = m.features(frame)
             cpu.setdefault("stereo", []).append(f.timings_ms.get("stereo_match_cpu", np.nan))
             s = score_matches(f.stereo, f.seed_ids_left, f.seed_ids_right, f.kp_left, f.kp_right, sg)
             st_tot.add(s)

@@ -16,6 +16,7 @@ import yaml
 
 from seedmap.errors import InputError, SeedmapError
 from seedmap.io.rig import _EQUI_ALIASES, _RADTAN_ALIASES, CameraModel, StereoRig, _calib_from_P
+from seedmap.io.text import read_text
 from seedmap.records import StereoCalib
 
 
@@ -71,10 +72,7 @@ def read_yaml_any(path: Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise InputError("calibration file not found", path)
-    try:
-        text = path.read_text(errors="strict")
-    except (UnicodeDecodeError, OSError):
-        raise InputError("calibration file is not UTF-8 text", path) from None
+    text = read_text(path, "calibration file")
     if text.lstrip().startswith("%YAML:"):
         return read_opencv_yaml(path)
     try:
@@ -180,6 +178,15 @@ def _rig_from_rect(K1, D1, R1, P1, K2, D2, R2, P2, size1, size2, model: str, pat
 # ----------------------------------------------------------------------------------------------
 
 
+def check_principal_point(calib: StereoCalib, path: Path) -> StereoCalib:
+    """A calibration file's principal point lies in its own image, or near it (half an image) after an
+    off-centre rectification; ``cx=-5000`` ran to the end with every frame lost."""
+    w, h = calib.width, calib.height
+    if not (-0.5 * w <= calib.cx <= 1.5 * w and -0.5 * h <= calib.cy <= 1.5 * h):
+        raise InputError(f"principal point (cx={calib.cx:g}, cy={calib.cy:g}) is outside the {w}x{h} image", path)
+    return calib
+
+
 def parse_seedmap_calib(d: dict, path: Path) -> StereoRig:
     """seedmap's own rectified ``calib.yaml``."""
     b = _num(d, "baseline_m", path)
@@ -194,7 +201,7 @@ def parse_seedmap_calib(d: dict, path: Path) -> StereoRig:
         raise
     except SeedmapError as e:
         raise InputError(str(e), path) from None
-    return StereoRig.from_calib(calib, source=path)
+    return StereoRig.from_calib(check_principal_point(calib, path), source=path)
 
 
 def _ros_camera(d: dict, path: Path) -> tuple:
@@ -373,10 +380,7 @@ def read_kitti_calib_file(path: Path) -> dict[str, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise InputError("calibration file not found", path)
-    try:
-        text = path.read_text()
-    except (UnicodeDecodeError, OSError):
-        raise InputError("calibration file is not text", path) from None
+    text = read_text(path, "calibration file")
     out: dict[str, np.ndarray] = {}
     for i, line in enumerate(text.splitlines(), 1):
         if not line.strip():
@@ -443,10 +447,10 @@ def parse_gtsam_stereo_calib(path: Path, image_size: tuple[int, int] | None = No
     """GTSAM stereo VO calibration: one line ``fx fy skew u0 v0 baseline`` (no size: pass ``image_size``,
     default ``(2*u0+1, 2*v0+1)`` rounded, i.e. principal point at the centre)."""
     path = Path(path)
+    toks = read_text(path, "calibration file").split()
     try:
-        toks = path.read_text().split()
         vals = [float(x) for x in toks]
-    except (UnicodeDecodeError, OSError, ValueError):
+    except ValueError:
         raise InputError("expected six numbers 'fx fy skew u0 v0 baseline'", path) from None
     if len(vals) != 6:
         raise InputError(f"expected six numbers 'fx fy skew u0 v0 baseline', got {len(vals)}", path)

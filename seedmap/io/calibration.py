@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 import yaml
 
-from seedmap.errors import InputError
+from seedmap.errors import InputError, SeedmapError
 from seedmap.io.calib_formats import (  # noqa: F401  (re-exported: the parsers)
     _rig_from_rect,
     kitti_cam_offset,
@@ -52,6 +52,7 @@ from seedmap.io.rig import (  # noqa: F401  (re-exported: the records)
     check_image_size,
     check_rig,
 )
+from seedmap.io.text import read_text
 from seedmap.records import StereoCalib
 
 def _rectification(rig: StereoRig, alpha: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -89,8 +90,11 @@ def rectify(rig: StereoRig, alpha: float = 0.0) -> tuple[StereoCalib, RectifyMap
     size = rig.left.size
     if rig.is_rectified and rig.rect is None:
         K = rig.left.K
-        return StereoCalib(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
-                           baseline=float(-rig.T[0]), width=size[0], height=size[1]), None
+        try:
+            return StereoCalib(fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
+                               baseline=float(-rig.T[0]), width=size[0], height=size[1]), None
+        except SeedmapError as e:
+            raise InputError(str(e), rig.source) from None
     R1, R2, P1, P2 = _rectification(rig, alpha)
     calib = _calib_from_P(P1, P2, size, rig.source)
     maps = []
@@ -143,10 +147,7 @@ def _load_rig(path: str | Path, right: str | Path | None, image_size: tuple[int,
     if not path.is_file():
         raise InputError("calibration file not found", path)
     if path.suffix.lower() == ".txt":
-        try:
-            head = path.read_text()
-        except (UnicodeDecodeError, OSError):
-            raise InputError("calibration file is not text", path) from None
+        head = read_text(path, "calibration file")
         if ":" in head:
             return parse_kitti_calib(path, kitti_cams, image_size)
         return parse_gtsam_stereo_calib(path, image_size)

@@ -34,6 +34,8 @@ class DatasetOptions(ConfigModel):
     rectify_alpha: float | None = None
     #: ground-truth pose file for KITTI
     poses: str | None = None
+    #: seedmap layout: use only the first frames when times.txt is shorter than the image list (else an error)
+    allow_fewer_times: bool | None = None
 
     def loader_kwargs(self) -> dict:
         return {k: v for k, v in self.model_dump().items() if k != "format" and v is not None}

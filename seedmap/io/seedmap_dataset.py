@@ -34,8 +34,11 @@ import yaml
 
 from seedmap.errors import ConfigError, InputError
 from seedmap.io.atomic import atomic_write_text
+from seedmap.io.calib_formats import check_principal_point
 from seedmap.io.images import read_label_png, read_rgb, write_png
 from seedmap.io.registry import detect_format, register_loader
+from seedmap.io.text import read_table, read_text
+from seedmap.io.timestamps import read_times_txt
 from seedmap.io.trajectory import read_tum, write_tum
 from seedmap.records import StereoCalib, StereoFrame, Trajectory
 
@@ -172,7 +175,7 @@ def read_calib_yaml(path: Path) -> StereoCalib:
     if not path.is_file():
         raise InputError("calibration file not found", path)
     try:
-        d = yaml.safe_load(path.read_text())
+        d = yaml.safe_load(read_text(path, "calibration file"))
     except yaml.YAMLError:
         raise InputError("calibration is not valid YAML", path) from None
     if not isinstance(d, dict):
@@ -181,7 +184,7 @@ def read_calib_yaml(path: Path) -> StereoCalib:
     if missing:
         raise InputError(f"calibration lacks {', '.join(missing)}", path)
     try:
-        return StereoCalib.from_dict(d)
+        return check_principal_point(StereoCalib.from_dict(d), path)
     except (TypeError, ValueError) as e:
         raise InputError(f"bad calibration value ({e})", path) from None
     except InputError:
@@ -195,7 +198,7 @@ class SeedmapDataset:
 
     name = "seedmap"
 
-    def __init__(self, root: str | Path) -> None:
+    def __init__(self, root: str | Path, allow_fewer_times: bool = False) -> None:
         self.root = Path(root)
         if self.root.exists() and not (self.root / "calib.yaml").is_file():
             fmt = detect_format(self.root)
@@ -209,15 +212,23 @@ class SeedmapDataset:
         times = self.root / "times.txt"
         if not times.is_file():
             raise InputError("times.txt not found", times)
-        try:
-            self.timestamps = np.loadtxt(times, ndmin=1).astype(float).reshape(-1)
-        except ValueError:
-            raise InputError("times.txt must hold one number per line", times) from None
-        if len(self.timestamps) > 1 and np.any(np.diff(self.timestamps) <= 0):
-            raise InputError("timestamps are not strictly increasing", times)
+        self.timestamps = read_times_txt(times)
         for cam in CAMERAS:
             if not (self.root / cam).is_dir():
                 raise InputError(f"{cam}/ image folder not found", self.root / cam)
+        self._check_frame_count(times, allow_fewer_times)
+
+    def _check_frame_count(self, times: Path, allow_fewer: bool) -> None:
+        """As many timestamps as frames: a frame without one would be dropped silently, a timestamp without
+        a frame fails late. Gaps in the numbering are left to the frame reader (it names the missing file)."""
+        n = len(self.timestamps)
+        for cam in CAMERAS:
+            m = sum(1 for p in (self.root / cam).glob("[0-9]*.png") if p.stem.isdigit())
+            if m > n and not allow_fewer:
+                raise InputError(f"has {n} timestamps but {cam}/ has {m} images (one line per frame; to use "
+                                 f"only the first {n} frames pass --set dataset.allow_fewer_times=true)", times)
+            if m < n and all(self.image_path(i, cam).is_file() for i in range(m)):
+                raise InputError(f"has {n} timestamps but {cam}/ has only {m} images (one line per frame)", times)
 
     @staticmethod
     def is_dataset(path: Path) -> bool:
@@ -266,7 +277,7 @@ class SeedmapDataset:
         p = self.root / "gt" / "seeds.csv"
         if not p.is_file():
             raise InputError("ground-truth seeds.csv not found", p)
-        a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        a = read_table(p, "ground-truth seeds.csv").reshape(-1, 8)
         return SeedTable(a[:, 0].astype(np.int64), a[:, 1].astype(np.int64), a[:, 2:5], a[:, 5:8])
 
     def gt_panicle_poses(self) -> dict[int, dict[int, np.ndarray]]:
@@ -277,8 +288,8 @@ class SeedmapDataset:
         out: dict[int, dict[int, np.ndarray]] = {}
         if not p.is_file():
             return out
-        a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
-        if len(a) == 0:
+        a = read_table(p, "ground-truth panicle_poses.csv")
+        if a.size == 0:
             return out
         T = tum_to_pose(a[:, 2:9])
         for f, pid, Ti in zip(a[:, 0].astype(int), a[:, 1].astype(int), T, strict=True):
@@ -316,7 +327,7 @@ class SeedmapDataset:
 
     def gt_config_text(self) -> str | None:
         p = self.root / "gt" / "config.yaml"
-        return p.read_text() if p.is_file() else None
+        return read_text(p, "ground-truth config.yaml") if p.is_file() else None
 
 
 def _is_seedmap(p: Path) -> bool:
@@ -325,10 +336,11 @@ def _is_seedmap(p: Path) -> bool:
         (p / "left" / frame_name(0)).is_file() or not any((p / "left").iterdir()))
 
 
-def _open_seedmap(p: Path, **kw) -> SeedmapDataset:
+def _open_seedmap(p: Path, allow_fewer_times: bool = False, **kw) -> SeedmapDataset:
     if kw:
-        raise ConfigError(f"the seedmap dataset format takes no options (got {', '.join(sorted(kw))})", p)
-    return SeedmapDataset(p)
+        raise ConfigError(f"the seedmap dataset format takes only the option allow_fewer_times (got "
+                          f"{', '.join(sorted(kw))})", p)
+    return SeedmapDataset(p, allow_fewer_times=allow_fewer_times)
 
 
 register_loader("seedmap", _is_seedmap, _open_seedmap, order=10)

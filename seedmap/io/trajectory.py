@@ -51,6 +51,25 @@ def read_tum(path: str | Path) -> Trajectory:
     return Trajectory(a[:, 0], tum_to_pose(a[:, 1:]) if len(a) else np.zeros((0, 4, 4)))
 
 
+def gt_overlapping(timestamps: np.ndarray, gt: Trajectory | None, where: str | Path) -> Trajectory | None:
+    """``gt``, or ``None`` with a warning when its pose times do not overlap the frame timestamps at all (another
+    clock: every GT metric would be empty or wrong). Warnings go to the ``seedmap.io`` logger (the CLI prints
+    them as ``warning:`` lines)."""
+    t = np.asarray(timestamps, float).reshape(-1)
+    if gt is None or not len(gt) or not len(t):
+        return gt
+    tol = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    g = np.asarray(gt.timestamps, float)
+    if t.max() >= g.min() - tol and t.min() <= g.max() + tol:
+        return gt
+    import logging
+
+    logging.getLogger("seedmap.io").warning(
+        f"{where}: the frame timestamps (times.txt, {t.min():.3f}..{t.max():.3f} s) do not overlap the ground-truth "
+        f"poses (gt/poses_tum.txt, {g.min():.3f}..{g.max():.3f} s): going on without GT metrics")
+    return None
+
+
 def write_kitti(path: str | Path, traj: Trajectory) -> None:
     """12 numbers per line: the first 3 rows of ``T_world_cam``, row-major."""
     lines = [" ".join(f"{v:.9e}" for v in T[:3, :4].reshape(-1)) for T in traj.poses]

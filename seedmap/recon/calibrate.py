@@ -30,7 +30,9 @@ files are re-stamped with the new hashes, coefficients untouched: :func:`restamp
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +42,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from seedmap.errors import ConfigError, InputError
+from seedmap.io.text import read_text
 
 if TYPE_CHECKING:
     from seedmap.recon.config import ReconConfig
@@ -128,6 +131,8 @@ def count_domain(cfg: ReconConfig) -> CountDomain:
     d = dcfg.model_dump()
     if isinstance(d.get("cnn"), dict):
         d["cnn"].pop("weights", None)  # the file's hash stands for it (a path differs between machines)
+    if isinstance(d.get("dataset"), dict):
+        d["dataset"].pop("allow_fewer_times", None)  # which frames are read, not how seeds are detected
     return CountDomain(detector=cfg.detector, weights_sha256=weights, detector_config_sha256=_sha(d),
                        count_config_sha256=_sha(counter_settings(cfg)))
 
@@ -241,13 +246,38 @@ def fit_count_calibration(feats: list[CountFeatures], truth: list[float], domain
              "loo_signed_pct": float(np.mean(loo)), "loo_std_pct": float(np.std(loo))})
 
 
+def read_true_counts(path: str | Path) -> dict[str, float]:
+    """A counts CSV: ``result,count`` rows (a header row is skipped) -> {result: count}; counts finite and > 0."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("counts file not found", path)
+    out: dict[str, float] = {}
+    for i, row in enumerate(csv.reader(io.StringIO(read_text(path, "counts file"), newline=""))):
+        if not row or not "".join(row).strip():
+            continue
+        if len(row) != 2:
+            raise InputError(f"line {i + 1}: expected `result,count`, got {len(row)} fields", path)
+        try:
+            v = float(row[1])
+        except ValueError:
+            if i == 0:
+                continue  # header
+            raise InputError(f"line {i + 1}: count {row[1]!r} is not a number", path) from None
+        if not (np.isfinite(v) and v > 0):
+            raise InputError(f"line {i + 1}: count must be a finite number > 0, got {row[1].strip()}", path)
+        out[row[0].strip().rstrip("/")] = v
+    if not out:
+        raise InputError("no `result,count` rows", path)
+    return out
+
+
 def load_count_calibration(path: str | Path) -> CountCalibration:
     """A calibration file (JSON), or a one-line InputError naming it."""
     p = Path(path)
     if not p.is_file():
         raise InputError("count calibration file not found", p)
     try:
-        return CountCalibration.model_validate_json(p.read_text())
+        return CountCalibration.model_validate_json(read_text(p, "count calibration file"))
     except (ValidationError, ValueError, UnicodeDecodeError) as e:
         first = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise InputError(f"not a seedmap count calibration ({first})", p) from None

@@ -24,6 +24,7 @@ from seedmap.detect import detector_label
 from seedmap.errors import InputError
 from seedmap.geometry import transform_points
 from seedmap.io.atomic import atomic_write_text
+from seedmap.io.text import read_table, read_text
 from seedmap.recon.config import ReconConfig
 from seedmap.recon.calibrate import CalibratedCount, calibrate_count, count_features
 from seedmap.recon.count import SeedCount, StereoKeypoints, count_density, count_multiview
@@ -69,7 +70,7 @@ def load_fk_poses(root: Path, n_frames: int, joints_path: Path | None = None,
     if not arm_path.is_file():
         raise InputError("arm description not found (needed with joints.csv for FK poses)", arm_path)
     try:
-        arm = yaml.safe_load(arm_path.read_text())
+        arm = yaml.safe_load(read_text(arm_path, "arm description"))
     except yaml.YAMLError:
         raise InputError("arm description is not valid YAML", arm_path) from None
     if not isinstance(arm, dict):
@@ -310,10 +311,7 @@ def read_detections(results: str | Path, n_views: int) -> list[StereoKeypoints |
     if not p.is_file():
         raise InputError("detections.csv not found (count method 'multiview' needs the 2D detections; "
                          "re-run `seedmap reconstruct`)", p)
-    try:
-        a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
-    except ValueError:
-        raise InputError("detections.csv is malformed", p) from None
+    a = read_table(p, "detections.csv", finite=False)  # no SGBM disparity: NaN
     if a.size and a.shape[1] < 5:
         raise InputError(f"detections.csv needs 5 columns, found {a.shape[1]}", p)
     ncol = a.shape[1] if a.size else 5
@@ -540,10 +538,7 @@ def read_observations(results: str | Path) -> tuple[np.ndarray, np.ndarray, np.n
         raise InputError("results folder not found", results)
     if not p.is_file():
         raise InputError("observations.csv not found (is this a `seedmap reconstruct` results folder?)", p)
-    try:
-        a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
-    except ValueError:
-        raise InputError("observations.csv is malformed", p) from None
+    a = read_table(p, "observations.csv", finite=False)
     if a.size == 0:
         return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0)
     if a.shape[1] < 5:

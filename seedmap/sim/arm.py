@@ -19,6 +19,7 @@ from scipy.spatial.transform import Rotation
 from seedmap.config import ConfigModel
 from seedmap.errors import ConfigError, InputError
 from seedmap.geometry import invert, make_pose
+from seedmap.io.text import read_text
 from seedmap.sim.config import drop_retired
 
 JOINT_NAMES = ("shoulder_pan", "shoulder_lift", "elbow", "wrist_1", "wrist_2", "wrist_3")
@@ -300,7 +301,7 @@ def read_joints_csv(path) -> tuple[np.ndarray, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise InputError("joints file not found (the arm scan needs joints.csv for FK poses)", path)
-    text = path.read_text().strip().splitlines()
+    text = read_text(path, "joints file").strip().splitlines()
     if len(text) < 2:
         raise InputError("joints file has no rows", path)
     head = [h.strip() for h in text[0].split(",")]
@@ -315,9 +316,12 @@ def read_joints_csv(path) -> tuple[np.ndarray, np.ndarray]:
                              "(joint angles of the wrong length?)", path)
         try:
             views.append(int(parts[0]))
-            rows.append([float(parts[i]) for i in meas])
+            vals = [float(x) for x in parts[1:]]
         except ValueError:
             raise InputError(f"line {ln}: not a number", path) from None
+        if not np.all(np.isfinite(vals)):
+            raise InputError(f"line {ln}: NaN or inf (every value must be a finite number)", path)
+        rows.append([vals[i - 1] for i in meas])
     q = np.asarray(rows, float)
     if not np.all(np.isfinite(q)):
         raise InputError("joint angles must be finite numbers", path)
@@ -351,6 +355,10 @@ def fk_camera_poses(q: np.ndarray, arm_yaml: dict) -> np.ndarray:
         X = np.asarray(arm_yaml["T_flange_cam"], float).reshape(4, 4)
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"arm description lacks or has a bad field ({e})") from None
+    for name, v in (("dh.d", dh.d), ("dh.a", dh.a), ("dh.alpha", dh.alpha), ("T_world_base", T_wb),
+                    ("T_flange_cam", X)):
+        if not np.all(np.isfinite(v)):
+            raise InputError(f"arm description: {name} has NaN or inf")
     if any(len(v) != 6 for v in (dh.d, dh.a, dh.alpha)):
         raise InputError("arm description: DH table needs 6 values for d, a and alpha")
     return T_wb @ fk(q, dh) @ X

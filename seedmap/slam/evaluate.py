@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.errors import InputError
+from seedmap.io.text import read_text
 from seedmap.eval.slam_metrics import SlamMetrics, compute_slam_metrics
 
 
@@ -23,11 +24,14 @@ def evaluate_result_dir(result: str | Path, dataset: str | Path, json_out: Path 
     if not result.is_dir():
         raise InputError("result folder not found", result)
     est = read_tum(result / "trajectory.tum")
+    if not len(est):  # scored as a run with every metric '-', exit 0
+        raise InputError("trajectory has no poses: nothing to evaluate (the run tracked no frame)",
+                         result / "trajectory.tum")
     old: dict = {}
     mp = result / "metrics.json"
     if mp.is_file():
         try:
-            old = json.loads(mp.read_text())
+            old = json.loads(read_text(mp, "metrics.json"))
         except json.JSONDecodeError:
             raise InputError("metrics.json is not valid JSON", mp) from None
     ds = open_dataset(dataset)

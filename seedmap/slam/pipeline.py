@@ -81,6 +81,8 @@ def run_slam(
     ``inputs``: more files the command read (``--config``); ``out`` and ``rerun`` are never one of them or the
     dataset (see :mod:`seedmap.outputs`)."""
     from seedmap.associate import make_matcher
+    from seedmap.io.stereo_order import check_stereo_order
+    from seedmap.io.trajectory import gt_overlapping
     from seedmap.slam.core import SemanticSlam
 
     cfg = config or SlamConfig()
@@ -100,7 +102,7 @@ def run_slam(
         check_rrd_path(rerun, [*ins, *([out] if out is not None else [])], overwrite)
     ds = cfg.dataset.open(dataset)
     calib = ds.calib
-    gt = ds.gt_trajectory()
+    gt = gt_overlapping(ds.timestamps, ds.gt_trajectory(), dataset)
     n = len(ds) if cfg.max_frames is None else min(len(ds), cfg.max_frames)
     if n == 0:
         raise SeedmapError("dataset has no frames", dataset)
@@ -127,6 +129,8 @@ def run_slam(
             t0 = time.perf_counter()
             frame = ds[i]
             t_load = (time.perf_counter() - t0) * 1e3
+            if i == 0:
+                check_stereo_order(frame.left, frame.right, dataset)
             feats = m.features(frame)
             res = slam.register_frame(feats)
             tm = {"load": t_load, **feats.timings_ms, **res.timings_ms}

@@ -42,11 +42,11 @@ def _weights_case(detector: str, content: bytes | None, suffix: str):
     return build
 
 
-add("detect-fast-cnn-weights-garbage-onnx", "weights", _weights_case("fast-cnn", BINARY, ".onnx"))
-add("detect-fast-cnn-weights-empty-onnx", "weights", _weights_case("fast-cnn", b"", ".onnx"))
-add("detect-fast-cnn-weights-text-onnx", "weights", _weights_case("fast-cnn", b"not a network\n", ".onnx"))
-add("detect-fast-cnn-weights-missing", "weights", _weights_case("fast-cnn", None, ".onnx"))
-add("detect-fast-cnn-weights-wrong-suffix", "weights", _weights_case("fast-cnn", BINARY, ".safetensors"))
+add("detect-fast-cnn-weights-garbage-onnx", "weights", _weights_case("fast", BINARY, ".onnx"))
+add("detect-fast-cnn-weights-empty-onnx", "weights", _weights_case("fast", b"", ".onnx"))
+add("detect-fast-cnn-weights-text-onnx", "weights", _weights_case("fast", b"not a network\n", ".onnx"))
+add("detect-fast-cnn-weights-missing", "weights", _weights_case("fast", None, ".onnx"))
+add("detect-fast-cnn-weights-wrong-suffix", "weights", _weights_case("fast", BINARY, ".safetensors"))
 
 
 @case("detect-frcnn-weights-garbage-safetensors", "weights")
@@ -63,7 +63,7 @@ def _(a, t):
 @case("detect-fast-cnn-weights-is-a-folder", "weights")
 def _(a, t):
     ds, w = copy_range(a, t), mine(t, "weights_dir")
-    return Setup(["detect", ds, "--out", t / "out", "--detector", "fast-cnn", "--weights", w], [ds, w], t / "out",
+    return Setup(["detect", ds, "--out", t / "out", "--detector", "fast", "--weights", w], [ds, w], t / "out",
                  (str(w),))
 
 
@@ -87,7 +87,7 @@ def _(a, t):
 def _(a, t):
     ds, w = copy_range(a, t), t / "w.onnx"
     w.write_bytes(BINARY)
-    return Setup(["detect", ds, "--out", t / "out", "--set", "detector=fast-cnn", "--set", f"weights={w}"], [ds, w],
+    return Setup(["detect", ds, "--out", t / "out", "--set", "detector=fast", "--set", f"weights={w}"], [ds, w],
                  t / "out", (str(w),))
 
 
