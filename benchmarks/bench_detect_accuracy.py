@@ -33,6 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
+from seedmap.progress import track
+
+
 
 def detect_all(dataset: str | Path, weights: str | None, threshold: float, overrides: list[str] | None = None,
                progress: bool = True) -> tuple[dict, float]:
@@ -46,11 +49,7 @@ def detect_all(dataset: str | Path, weights: str | None, threshold: float, overr
     det = CnnDetector(cfg.cnn, weights=weights)
     ds = SeedmapDataset(dataset)
     out = {}
-    it = range(len(ds))
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, desc=f"detect {Path(dataset).name}", unit="frame")
+    it = track(range(len(ds)), f"detect {Path(dataset).name}", "frame", enabled=progress)
     t0 = time.process_time()
     for i in it:
         fr = ds[i]

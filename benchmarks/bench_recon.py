@@ -87,15 +87,14 @@ def _detections_cache(root: Path, det: str, path: Path, detector_set: tuple[str,
 
     ds = SeedmapDataset(root)
     if not path.is_file():
-        from tqdm import tqdm
-
         from seedmap.detect import make_detector
+        from seedmap.progress import track
         from seedmap.recon.stereo import compute_disparity
 
         cfg = _recon_config(det, detector_set)
         d = make_detector(det, dataset=ds, overrides=list(cfg.detector_overrides))
         kps = []
-        for i in tqdm(range(len(ds)), desc=f"{root.name} detections + SGBM", unit="view"):
+        for i in track(range(len(ds)), f"{root.name} detections + SGBM", "view"):
             fr = ds[i]
             sd = d.detect_stereo(fr)
             disp = compute_disparity(fr.left, fr.right, ds.calib, cfg.sgbm, cfg.cloud)

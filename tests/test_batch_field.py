@@ -16,6 +16,8 @@ from seedmap.batch import find_ranges, run_batch
 from seedmap.config import load_config
 from seedmap.slam.config import SlamConfig
 
+from helpers.datasets import tiny_stereo_dataset
+
 TINY = ["world.length=0.3", "world.gap=0.3", "camera.scale=0.15", "imaging.supersample=1"]
 SLAM = ["max_frames=3"]
 
@@ -55,17 +57,7 @@ def _summary(out: Path) -> dict[str, dict]:
 
 def _tiny_dataset(root: Path) -> Path:
     """A 2-frame seedmap-layout dataset with 16x12 images (enough for the loaders to recognise it)."""
-    import numpy as np
-
-    from seedmap.io.seedmap_dataset import DatasetWriter
-    from seedmap.records import StereoCalib
-
-    w = DatasetWriter(root)
-    w.write_calib(StereoCalib(20.0, 20.0, 7.5, 5.5, 0.11, 16, 12))
-    w.write_times(np.array([0.0, 0.2]))
-    for i in range(2):
-        w.write_frame(i, np.zeros((12, 16, 3), np.uint8), np.zeros((12, 16, 3), np.uint8))
-    return root
+    return tiny_stereo_dataset(root, 2, 16, 12)
 
 
 def test_find_ranges_skips_hidden_nonsense_and_output(tmp_path):

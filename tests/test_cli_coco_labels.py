@@ -10,74 +10,20 @@ from __future__ import annotations
 
 import copy
 import json
-from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
 from seedmap.detect.labels import CocoSource
 from seedmap.errors import InputError
-from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir import mode)
 
-
-def _rle(m: np.ndarray) -> dict:
-    """Uncompressed COCO RLE: run lengths of the column-major mask, starting with a run of zeros."""
-    f = m.flatten(order="F").astype(np.int8)
-    change = np.flatnonzero(np.diff(f)) + 1
-    bounds = np.concatenate([[0], change, [f.size]])
-    runs = np.diff(bounds).tolist()
-    if f[0] == 1:
-        runs = [0, *runs]
-    return {"counts": runs, "size": list(m.shape)}
-
-
-_EXPORTS: dict = {}
-
-
-def _export_coco(root: Path, frames=(0, 1), min_area: int = 6) -> tuple[dict, dict]:
-    """COCO of the left GT instances of ``frames``: every other seed as a polygon (pixel-edge
-    coordinates) or an RLE mask. Returns the COCO dict and {annotation id: GT mask} (computed once)."""
-    key = (str(root), tuple(frames), min_area)
-    if key not in _EXPORTS:
-        _EXPORTS[key] = _export_coco_uncached(root, frames, min_area)
-    return copy.deepcopy(_EXPORTS[key][0]), _EXPORTS[key][1]
-
-
-def _export_coco_uncached(root: Path, frames, min_area: int) -> tuple[dict, dict]:
-    from seedmap.io.seedmap_dataset import SeedmapDataset
-
-    ds = SeedmapDataset(root)
-    images, anns, masks = [], [], {}
-    for i in frames:
-        lab = ds.gt_label_image(i, "left")
-        inst = ds.gt_instances(i, "left")
-        h, w = lab.shape
-        images.append({"id": i + 1, "file_name": f"left/{i:06d}.png", "width": w, "height": h})
-        for lbl in inst.label:
-            m = (lab == lbl).astype(np.uint8)
-            if m.sum() < min_area:
-                continue
-            ys, xs = np.nonzero(m)
-            bbox = [float(xs.min()), float(ys.min()), float(np.ptp(xs) + 1), float(np.ptp(ys) + 1)]
-            aid = len(anns) + 1
-            if aid % 2:
-                seg = _rle(m)
-            else:
-                # the pixel-edge outline of a convex-ish blob: contour of the 2x upsampled mask, halved
-                big = cv2.resize(m, (2 * w, 2 * h), interpolation=cv2.INTER_NEAREST)
-                cs, _ = cv2.findContours(big, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-                c = max(cs, key=len).reshape(-1, 2).astype(float)
-                seg = [((c + 0.5) / 2.0).ravel().tolist()]
-            anns.append({"id": aid, "image_id": i + 1, "category_id": 1, "bbox": bbox, "area": float(m.sum()),
-                         "iscrowd": 0, "segmentation": seg})
-            masks[aid] = m
-    return {"images": images, "annotations": anns, "categories": [{"id": 1, "name": "seed"}]}, masks
+from helpers.cli import run_cli as _run
+from helpers.coco import export_coco
 
 
 def test_coco_polygon_and_rle_masks_read_back_to_gt_and_train_the_segmenter(tiny_range, tmp_path, monkeypatch):
     pytest.importorskip("torch")
-    coco, masks = _export_coco(tiny_range)
+    coco, masks = export_coco(tiny_range)
     assert len(coco["annotations"]) >= 20
     p = tmp_path / "labels.json"
     p.write_text(json.dumps(coco))
@@ -135,7 +81,7 @@ def test_seedmap_detect_coco_output_is_accepted_as_labels(tiny_range, tmp_path, 
 ])
 def test_bad_coco_is_one_line_naming_the_file_and_leaves_no_folder(tiny_range, tmp_path, monkeypatch, capsys,
                                                                      case, needle):
-    coco, _ = _export_coco(tiny_range, frames=(0,))
+    coco, _ = export_coco(tiny_range, frames=(0,))
     e = copy.deepcopy(coco)
     a0 = e["annotations"][0]
     if case == "missing_image":
@@ -170,7 +116,7 @@ def test_bad_coco_is_one_line_naming_the_file_and_leaves_no_folder(tiny_range, t
 
 def test_fast_cnn_on_a_coco_file_says_which_trainers_read_coco(tiny_range, tmp_path, monkeypatch, capsys):
     pytest.importorskip("torch")
-    coco, _ = _export_coco(tiny_range, frames=(0,))
+    coco, _ = export_coco(tiny_range, frames=(0,))
     p = tmp_path / "labels.json"
     p.write_text(json.dumps(coco))
     out = tmp_path / "fc"

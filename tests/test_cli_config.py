@@ -8,7 +8,8 @@ from pydantic import Field
 
 from seedmap.cli.config import KINDS, config_class, config_yaml, field_doc
 from seedmap.config import ConfigModel, load_config
-from cli_run import run_cli  # tests/ is on sys.path (pytest rootdir import mode)
+
+from helpers.cli import run_cli
 
 
 class _Inner(ConfigModel):

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from seedmap.errors import ConfigError, InputError
-from seedmap.records import StereoCalib
-from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir import mode)
+
+from helpers.cli import run_cli as _run
+from helpers.datasets import tiny_stereo_dataset
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 EUROC = REAL / "euroc_v101_micro_stereo"
@@ -25,18 +26,7 @@ def _one_error_line(err: str) -> str:
     return lines[0]
 
 
-def _tiny_dataset(root: Path, n: int = 2) -> Path:
-    """A seedmap-layout stereo pair sequence of textured noise, 160x120 px, 0.1 m baseline."""
-    from seedmap.io.seedmap_dataset import DatasetWriter
-
-    rng = np.random.default_rng(0)
-    w = DatasetWriter(root)
-    w.write_calib(StereoCalib(fx=120.0, fy=120.0, cx=80.0, cy=60.0, baseline=0.1, width=160, height=120))
-    w.write_times(np.arange(n) * 0.2)
-    for i in range(n):
-        img = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
-        w.write_frame(i, img, np.roll(img, -8, axis=1))
-    return root
+_tiny_dataset = tiny_stereo_dataset
 
 
 # ---- output location the file system refuses (os.access() says yes to root) -------------------------------------
@@ -152,7 +142,7 @@ def test_rerun_recording_in_an_uncreatable_folder(tmp_path, monkeypatch, capsys)
 def test_loader_hints_name_real_options_and_the_bag(tmp_path, monkeypatch, capsys):
     # the hints name options `seedmap slam` has; a swapped-camera error names the bag, not only
     # "/stereo/left/camera_info" (Path(bag) / "/topic" drops the bag)
-    from test_io_rosbag import write_bag
+    from helpers.bags import write_bag
 
     from seedmap.config import load_config
     from seedmap.io.options import DatasetOptions

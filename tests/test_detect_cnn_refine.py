@@ -122,7 +122,7 @@ def test_training_a_refiner_on_a_small_range_learns(cnn_range, tmp_path):
 def test_train_cnn_refiner_bad_inputs_are_one_line(tmp_path, monkeypatch, capsys):
     """Missing datasets, a dataset without GT and bad numbers give one line and exit code 2, and no output."""
     pytest.importorskip("torch")
-    from cli_run import run_cli
+    from helpers.cli import run_cli
 
     from seedmap.io.seedmap_dataset import DatasetWriter
     from seedmap.records import StereoCalib
@@ -150,12 +150,12 @@ def test_refiner_training_data_from_coco_masks_matches_the_simulated_gt(cnn_rang
     simulated GT itself; annotations with boxes only are refused (the refiner learns from masks)."""
     import json
 
-    from test_cli_coco_labels import _export_coco  # tests/ is on sys.path
+    from helpers.coco import export_coco
 
     from seedmap.detect.train_refiner import training_data
     from seedmap.detect.config import CnnConfig, min_visible_seed_px
 
-    coco, _ = _export_coco(cnn_range.root, frames=(0, 1), min_area=1)
+    coco, _ = export_coco(cnn_range.root, frames=(0, 1), min_area=1)
     p = tmp_path / "labels.json"
     p.write_text(json.dumps(coco))
     det = CnnDetector(CnnConfig(threshold=0.25, refiner="none"))

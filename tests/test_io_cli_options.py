@@ -7,7 +7,8 @@ import json
 from typer.testing import CliRunner
 
 from seedmap.cli import app
-from test_io_rosbag import write_bag  # pytest puts tests/ on sys.path (rootdir-relative import mode)
+
+from helpers.bags import write_bag
 
 TOPICS = ("/a/img", "/b/img")
 

@@ -18,7 +18,7 @@ from seedmap.io.kitti import KittiSequence
 from seedmap.io.options import DatasetOptions
 from seedmap.records import StereoCalib
 
-from test_io_calibration import make_rig, write_euroc_pair, write_kalibr  # noqa: E402  (tests/ is on sys.path)
+from helpers.calibration_files import make_rig, write_euroc_pair, write_kalibr  # noqa: E402
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason="shared/realdata not present")

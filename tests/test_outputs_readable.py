@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from cli_run import run_cli as _run  # tests/ is on sys.path (pytest rootdir import mode)
+from helpers.cli import run_cli as _run
 
 
 @pytest.fixture(scope="module")

@@ -155,12 +155,10 @@ def test_a_calibration_file_must_match_the_run(tmp_path):
 
 
 @pytest.mark.slow
-def test_reconstruct_count_and_train_count_calibration_cli(tmp_path, monkeypatch, capsys):
-    from cli_run import run_cli
+def test_reconstruct_count_and_train_count_calibration_cli(arm_scan_6_views, tmp_path, monkeypatch, capsys):
+    from helpers.cli import run_cli
 
-    data = tmp_path / "p3"
-    assert run_cli(["simulate", "panicle", "--seed", "3", "--views", "6", "--out", data, "-q",
-                    "--set", "sim.camera.scale=0.18"], monkeypatch) == 0
+    data = arm_scan_6_views
     res, res_gt = tmp_path / "fast", tmp_path / "gt"
     assert run_cli(["reconstruct", data, "--detector", "fast", "--out", res, "-q"], monkeypatch) == 0
     assert run_cli(["reconstruct", data, "--detector", "gt", "--out", res_gt, "-q", "--set",

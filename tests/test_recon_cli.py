@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from helpers.arm_scan_files import write_arm_scan
 from seedmap import cli
 
 
@@ -19,9 +20,7 @@ def _run(args: list[str], monkeypatch) -> int:
 
 
 def test_reconstruct_without_joints_file_exits_2_and_writes_nothing(tmp_path, monkeypatch, capsys):
-    from test_recon_pipeline import _write_scan
-
-    _write_scan(tmp_path / "scan", 3, joints=False)
+    write_arm_scan(tmp_path / "scan", 3, joints=False)
     code = _run(["reconstruct", str(tmp_path / "scan"), "--out", str(tmp_path / "res")], monkeypatch)
     assert code == 2
     assert "joints.csv" in capsys.readouterr().err
@@ -29,9 +28,7 @@ def test_reconstruct_without_joints_file_exits_2_and_writes_nothing(tmp_path, mo
 
 
 def test_bad_register_mode_and_missing_results(tmp_path, monkeypatch, capsys):
-    from test_recon_pipeline import _write_scan
-
-    _write_scan(tmp_path / "scan", 3)
+    write_arm_scan(tmp_path / "scan", 3)
     assert _run(["reconstruct", str(tmp_path / "scan"), "--out", str(tmp_path / "r"), "--register", "icp"],
                 monkeypatch) == 2
     assert "--register" in capsys.readouterr().err
@@ -39,10 +36,8 @@ def test_bad_register_mode_and_missing_results(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.slow
-def test_simulate_reconstruct_count_end_to_end(tmp_path, monkeypatch):
-    data, res = tmp_path / "p3", tmp_path / "r3"
-    assert _run(["simulate", "panicle", "--seed", "3", "--views", "6", "--out", str(data), "-q",
-                 "--set", "sim.camera.scale=0.18"], monkeypatch) == 0
+def test_simulate_reconstruct_count_end_to_end(arm_scan_6_views, tmp_path, monkeypatch):
+    data, res = arm_scan_6_views, tmp_path / "r3"
     for f in ("joints.csv", "arm.yaml", "gt/poses_tum.txt", "gt/poses_fk_tum.txt", "gt/surface_points.npy"):
         assert (data / f).is_file(), f
     assert _run(["reconstruct", str(data), "--register", "seeds", "--detector", "gt", "--out", str(res), "-q",

@@ -6,7 +6,8 @@ seeds, neighbours >= 0.96 diameters apart): the view-sharing track join (``mv_de
 from __future__ import annotations
 
 import numpy as np
-from test_recon_multiview import CALIB, SEED_D, scan  # pytest puts tests/ on sys.path
+
+from helpers.arm_scans import CALIB, SEED_D, scan
 
 from seedmap.geometry import invert
 from seedmap.recon.config import CountConfig

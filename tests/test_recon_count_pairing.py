@@ -5,7 +5,8 @@ assignment (``mv_row_sigma_px``, in the ``fast`` profile)."""
 from __future__ import annotations
 
 import numpy as np
-from test_recon_multiview import CALIB, scan  # pytest puts tests/ on sys.path
+
+from helpers.arm_scans import CALIB, scan
 
 from seedmap.recon.config import CountConfig
 from seedmap.recon.count import count_multiview

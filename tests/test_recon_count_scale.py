@@ -11,7 +11,8 @@ import pytest
 from seedmap.recon.config import CountConfig
 from seedmap.recon.count import StereoKeypoints, count_multiview, scaled_tolerances, size_scale
 from seedmap.recon.count.multiview import SCALED_PX_KEYS
-from test_recon_multiview import CALIB, scan
+
+from helpers.arm_scans import CALIB, scan
 
 
 def scaled_scan(seed: int, scale: float, rel: float = 0.15, frac: float = 0.5):

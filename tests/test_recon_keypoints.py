@@ -5,7 +5,8 @@ front of the panicle surface; the SGBM disparity at every left keypoint is the s
 from __future__ import annotations
 
 import numpy as np
-from test_recon_multiview import CALIB, VIEWS, scan  # pytest puts tests/ on sys.path
+
+from helpers.arm_scans import CALIB, VIEWS, scan
 
 from seedmap.geometry import invert
 from seedmap.recon.count import StereoKeypoints, keypoint_disparity

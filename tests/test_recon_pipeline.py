@@ -5,19 +5,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import yaml
 
 from seedmap.errors import InputError
 from seedmap.geometry import invert, transform_points
 from seedmap.eval.recon_metrics import pose_errors
-from seedmap.io.seedmap_dataset import DatasetWriter, Instances
 from seedmap.recon.config import CloudConfig, CountConfig, ReconConfig, RegisterConfig, SgbmConfig
 from seedmap.recon.count import count_density
 from seedmap.recon.pipeline import load_fk_poses, prepare_scan
 from seedmap.recon.register import ViewGeometry, estimate_normals, register_views, voxel_down
 from seedmap.recon.stereo import compute_disparity, disparity_to_cloud, seed_centres
-from seedmap.records import Detections, StereoCalib
-from seedmap.sim.arm import ArmConfig, arm_yaml_dict, simulate_capture, write_joints_csv
+from seedmap.records import Detections
+from seedmap.sim.arm import ArmConfig, simulate_capture
+
+from helpers.arm_scan_files import CALIB, textured_pair, write_arm_scan
 
 def synthetic_panicle(rng: np.random.Generator, n_seeds: int = 900, length: float = 0.2, width: float = 0.05,
                       seed_radius: float = 0.002):
@@ -52,21 +52,6 @@ def view_observations(T_world_cam: np.ndarray, centres: np.ndarray, normals: np.
     cloud += rng.normal(0, noise, cloud.shape) * np.array([0.3, 0.3, 1.0])
     cen = transform_points(Tcw, centres[ids]) + rng.normal(0, noise, (len(ids), 3)) * np.array([0.3, 0.3, 1.0])
     return cloud, cen, ids
-
-
-CALIB = StereoCalib(fx=500.0, fy=500.0, cx=319.5, cy=119.5, baseline=0.11, width=640, height=240)
-
-
-def textured_pair(depth: float, rng: np.random.Generator):
-    """A fronto-parallel textured plane at ``depth`` (m): the right image is the left shifted by
-    the exact disparity (integer here)."""
-    d = int(round(CALIB.fx * CALIB.baseline / depth))
-    W, H = CALIB.width, CALIB.height
-    tex = (rng.uniform(40, 255, (H, W + d + 64)) * 1.0).astype(np.uint8)
-    tex = np.repeat(tex[:, :, None], 3, axis=2)
-    left = tex[:, 0:W].copy()  # left pixel u sees texture column u ...
-    right = tex[:, d:d + W].copy()  # ... which the right camera sees at u - d
-    return left, right, d
 
 
 def test_sgbm_recovers_the_depth_of_a_textured_plane():
@@ -165,38 +150,18 @@ def test_counting_deduplicates_a_synthetic_cluster_set():
 # ------------------------------------------------------------------------------------------------
 
 
-def _write_scan(root, n_views: int, dark_views=(), joints=True):
-    rng = np.random.default_rng(0)
-    cfg = ArmConfig(views=n_views)
-    cap = simulate_capture(cfg, [0.1], np.random.default_rng(1))
-    w = DatasetWriter(root)
-    w.write_calib(CALIB)
-    w.write_times(np.arange(n_views, dtype=float))
-    for k in range(n_views):
-        left, right, _ = textured_pair(0.3, rng)
-        if k in dark_views:
-            left, right = np.zeros_like(left), np.zeros_like(right)
-        w.write_frame(k, left, right)
-        for cam in ("left", "right"):
-            w.write_gt_instances(k, cam, np.zeros((CALIB.height, CALIB.width), np.uint16), Instances.empty())
-    if joints:
-        write_joints_csv(root / "joints.csv", cap)
-        (root / "arm.yaml").write_text(yaml.safe_dump(arm_yaml_dict(cap, cfg)))
-    return cap
-
-
 def _cfg() -> ReconConfig:
     return ReconConfig(detector="gt", cloud=CloudConfig(min_depth=0.2, max_depth=0.42))
 
 
 def test_missing_joints_file_is_a_clear_error(tmp_path):
-    _write_scan(tmp_path, 3, joints=False)
+    write_arm_scan(tmp_path, 3, joints=False)
     with pytest.raises(InputError, match="joints.csv"):
         prepare_scan(tmp_path, _cfg(), progress=False)
 
 
 def test_joints_rows_must_match_the_frames(tmp_path):
-    _write_scan(tmp_path, 3)
+    write_arm_scan(tmp_path, 3)
     lines = (tmp_path / "joints.csv").read_text().splitlines()
     (tmp_path / "joints.csv").write_text("\n".join(lines[:-1]) + "\n")
     with pytest.raises(InputError, match="2 rows"):
@@ -204,10 +169,10 @@ def test_joints_rows_must_match_the_frames(tmp_path):
 
 
 def test_views_without_disparity_are_recorded_skips_and_all_dark_is_an_error(tmp_path):
-    _write_scan(tmp_path / "a", 3, dark_views=(1,))
+    write_arm_scan(tmp_path / "a", 3, dark_views=(1,))
     prep = prepare_scan(tmp_path / "a", _cfg(), progress=False)
     assert prep.views[1] is None and prep.views[0] is not None
     assert [s["view"] for s in prep.skipped] == [1]
-    _write_scan(tmp_path / "b", 3, dark_views=(0, 1, 2))
+    write_arm_scan(tmp_path / "b", 3, dark_views=(0, 1, 2))
     with pytest.raises(InputError, match="no view has valid disparity"):
         prepare_scan(tmp_path / "b", _cfg(), progress=False)

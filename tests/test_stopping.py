@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from seedmap.records import StereoCalib
-from cli_run import run_cli  # tests/ is on sys.path (pytest rootdir import mode)
+
+from helpers.cli import run_cli
 
 SRC = str(Path(__file__).resolve().parents[1])
 ON_LINUX = Path("/proc/self/stat").is_file()

@@ -7,7 +7,8 @@ import pytest
 
 from seedmap.records import Detections, Matches, StereoCalib, Trajectory
 from seedmap.viz.rerun_log import RerunLogger, ellipse_polylines, rrd_entity_paths
-from rerun_read import rrd_column  # tests/ is on sys.path (pytest rootdir import mode)
+
+from helpers.rerun_read import rrd_column
 
 CALIB = StereoCalib(fx=200.0, fy=200.0, cx=79.5, cy=59.5, baseline=0.11, width=160, height=120)
 

@@ -10,7 +10,8 @@ import pytest
 
 from seedmap import cli
 from seedmap.viz.rerun_log import rrd_entity_paths
-from rerun_read import rrd_column  # tests/ is on sys.path (pytest rootdir import mode)
+
+from helpers.rerun_read import rrd_column
 
 TINY_RANGE = ["world.length=0.3", "world.gap=0.3", "camera.scale=0.15", "imaging.supersample=1"]
 

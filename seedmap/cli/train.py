@@ -78,9 +78,8 @@ def train_count_calibration_cmd(
 ) -> None:
     """Fit a count calibration (seedmap.recon.calibrate) from reconstructions with known counts; use it with
     `seedmap count RESULT --set count.calibration=FILE` or `seedmap reconstruct ... --set count.calibration=FILE`."""
-    from rich.progress import track
-
     from seedmap.config import load_config
+    from seedmap.progress import track
     from seedmap.recon.calibrate import count_domain, fit_count_calibration, read_true_counts, save_count_calibration
     from seedmap.recon.config import ReconConfig
     from seedmap.recon.pipeline import recount_calibrated
@@ -95,7 +94,7 @@ def train_count_calibration_cmd(
     if counts is not None:
         truth_by = read_true_counts(counts)
     feats, truth, samples, domain = [], [], [], None
-    for r in track(results, description="counting", transient=True):
+    for r in track(results, "counting", "result"):
         cfg_path = r / "config.yaml"
         if not cfg_path.is_file():
             raise SeedmapError(f"{cfg_path}: not found (is this a `seedmap reconstruct` results folder?)")

@@ -17,6 +17,7 @@ from seedmap.detect.io import detection_image_sizes, detection_record, read_dete
 from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_write_text
 from seedmap.io.images import write_png
+from seedmap.progress import track
 
 
 class DetectRunConfig(DetectConfig):
@@ -57,11 +58,7 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
     records = []
     t_det = 0.0
     with outputs.output_dir(Path(out), "detect", ins, overwrite) as tmp:
-        it = idx
-        if progress:
-            from tqdm import tqdm
-
-            it = tqdm(idx, desc=f"detect ({det.name})", unit="frame")
+        it = track(idx, f"detect ({det.name})", "frame", enabled=progress)
         for i in it:
             frame = seq[i]
             t0 = time.perf_counter()

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.errors import InputError
+from seedmap.progress import Progress, track
 
 #: output channels of the network: heat logit, l, t, r, b (px), dx, dy (px)
 N_OUT = 7
@@ -147,10 +148,7 @@ def load_training_images(datasets: list[str | Path], frames: dict | None = None,
         fr = (frames or {}).get(str(d), range(len(ds)))
         arm = is_arm_scan(ds.root)
         items += [(ds, arm, i, cam) for i in fr for cam in ("left", "right")]
-    if progress:
-        from tqdm import tqdm
-
-        items = tqdm(items, desc="cnn targets", unit="img")
+    items = track(items, "cnn targets", "img", enabled=progress)
     out = []
     for ds, arm, i, cam in items:
         ti = image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam), ds.gt_instances(i, cam),
@@ -539,11 +537,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
 
     t_cpu0 = time.process_time()
     t_wall0 = time.perf_counter()
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=cfg.steps, initial=step, desc="train fast-cnn", unit="step")
+    bar = Progress(cfg.steps, "train fast-cnn", "step", enabled=progress, initial=step)
     run = []
 
     def validate() -> float:
@@ -564,17 +558,15 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         opt.step()
         step += 1
         run.append(float(loss.detach()))
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix(loss=f"{np.mean(run[-50:]):.3f}")
+        bar.advance()
+        bar.note(f"loss={np.mean(run[-50:]):.3f}")
         if step % cfg.val_every == 0 or step == cfg.steps:
             v = validate()
             history.append({"step": step, "train_loss": float(np.mean(run[-cfg.val_every:])), "val_loss": v[0],
                             "val_focal": v[1], "val_box_l1_px": v[2], "val_offset_l1_px": v[3], "val_box_1_giou": v[4],
                             "cpu_s": prev_cpu + time.process_time() - t_cpu0})
             save_checkpoint(ck, net, opt, step, cfg, history)
-    if bar is not None:
-        bar.close()
+    bar.close()
     from dataclasses import asdict
 
     info = {"train_sets": [str(d) for d in train_sets], "val_sets": [str(d) for d in (val_sets or [])],

@@ -23,6 +23,7 @@ from seedmap.errors import InputError
 from seedmap.eval.detect_metrics import evaluate_detections, prf
 from seedmap.io.atomic import atomic_write_bytes
 from seedmap.io.seedmap_dataset import Instances, SeedmapDataset
+from seedmap.progress import track
 
 
 def peak_targets(x: np.ndarray, y: np.ndarray, raw: np.ndarray, labels: np.ndarray, inst, min_gt_area: float
@@ -66,11 +67,7 @@ def training_data(datasets: list[str | Path], detector, patch_r: int = PATCH_R, 
     sources = [SeedmapSource(p, min_area_px=1) if Path(p).is_dir() else open_labelled(p, images_root)
                for p in datasets]
     items = [(src, p, k) for src, p in zip(sources, datasets) for k in range(len(src))]
-    it = items
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(items, desc="cnn-refiner samples", unit="img")
+    it = track(items, "cnn-refiner samples", "img", enabled=progress)
     fs, bs, ss, hs = [], [], [], []
     for src, p, k in it:
         li = src[k]
@@ -161,11 +158,7 @@ def validate(datasets: list[str | Path], refiner: str | Path, thresholds: list[f
     for p in datasets:
         ds = SeedmapDataset(p)
         mga = min_visible_seed_px(ds.calib.width)
-        frames = range(len(ds))
-        if progress:
-            from tqdm import tqdm
-
-            frames = tqdm(frames, desc=f"validate {Path(p).name}", unit="frame")
+        frames = track(range(len(ds)), f"validate {Path(p).name}", "frame", enabled=progress)
         dets: dict = {k: {} for k in runs}
         for i in frames:
             fr = ds[i]
@@ -238,11 +231,7 @@ def train_mlp(x: np.ndarray, y: np.ndarray, is_seed: np.ndarray, steps: int = 30
     sched = (torch.optim.lr_scheduler.LambdaLR(opt, lambda k: 0.03 + 0.97 * 0.5 * (1 + np.cos(np.pi * k / steps)))
              if cosine else None)
     losses = []
-    it = range(steps)
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(it, desc="refiner", unit="step", mininterval=1.0)
+    it = track(range(steps), "refiner", "step", enabled=progress)
     for _ in it:
         b = torch.randint(0, len(X), (min(batch, len(X)),), generator=g)
         o = net(X[b])

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.associate.base import GateConfig
+from seedmap.progress import Progress
 from seedmap.records import Matches
 
 
@@ -110,7 +111,7 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
     from seedmap.io import open_dataset
     from seedmap.io.stereo_order import check_stereo_order
     from seedmap.slam.config import SlamConfig
-    from seedmap.slam.pipeline import _detector_for, _progress
+    from seedmap.slam.pipeline import _detector_for
 
     cfg = config or SlamConfig()
     ds = open_dataset(dataset)
@@ -122,7 +123,7 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
     rows = []
     cpu: dict[str, list[float]] = {}
     prev = None
-    with _progress(progress, n, f"associate {matcher}") as advance:
+    with Progress(n, f"associate {matcher}", "frame", progress) as bar:
         for i in range(n):
             frame = ds[i]
             if i == 0:
@@ -141,7 +142,7 @@ def evaluate_association(dataset: str | Path, detector: str = "gt", matcher: str
                 row["temporal"] = t.summary()
             rows.append(row)
             prev = f
-            advance()
+            bar.advance()
     return AssociationReport(str(dataset), detector if det is not None else "", matcher, n,
                              st_tot.summary(), tm_tot.summary(), rows, _cpu_summary(cpu, n))
 

@@ -19,6 +19,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from seedmap.io.seedmap_dataset import Instances
+from seedmap.progress import track
 from seedmap.records import Detections
 
 
@@ -180,11 +181,7 @@ def evaluate_detections(dataset: object, detections: dict[tuple[int, str], Detec
     """Evaluate ``{(frame, camera): Detections}`` against the GT instances of a SeedmapDataset."""
     rows, errs = [], []
     keys = sorted(detections)
-    it = keys
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(keys, desc="eval detect", unit="img")
+    it = track(keys, "eval detect", "img", enabled=progress)
     for frame, cam in it:
         gt = dataset.gt_instances(frame, cam)
         m, e = frame_metrics(detections[(frame, cam)], gt, frame, cam, iou_threshold, method, min_gt_area)

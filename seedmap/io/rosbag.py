@@ -31,6 +31,7 @@ from seedmap.io.calibration import StereoRig, _calib_from_P, _rig_from_rect, che
 from seedmap.io.common import LoaderWarnings, decode_image_bytes, to_rgb
 from seedmap.io.registry import construct, register_loader
 from seedmap.io.sync import match_stamps
+from seedmap.progress import track
 from seedmap.records import StereoFrame, Trajectory
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -261,13 +262,11 @@ class RosbagSequence:
         self._conn = {}
         seen: dict[tuple[str, int], int] = {}
         info_msgs: dict[str, object] = {}
-        from tqdm import tqdm
-
         total = counts[left_topic] + counts[right_topic]
         try:
-            for conn, t_ns, raw in tqdm(reader.messages(connections=conns + info_conns), desc="indexing bag",
-                                        total=total + sum(counts.get(t, 0) for t in {info_l, info_r} if t),
-                                        unit="msg", leave=False, disable=total < 2000):
+            for conn, t_ns, raw in track(reader.messages(connections=conns + info_conns), "indexing bag", "msg",
+                                         total=total + sum(counts.get(t, 0) for t in {info_l, info_r} if t),
+                                         enabled=total >= 2000):
                 if conn.topic in (info_l, info_r):
                     if conn.topic not in info_msgs:
                         info_msgs[conn.topic] = reader.deserialize(raw, conn.msgtype)

@@ -25,6 +25,7 @@ from seedmap.errors import InputError
 from seedmap.geometry import transform_points
 from seedmap.io.atomic import atomic_write_text
 from seedmap.io.text import read_table, read_text
+from seedmap.progress import Progress
 from seedmap.recon.config import ReconConfig
 from seedmap.recon.calibrate import CalibratedCount, calibrate_count, count_features
 from seedmap.recon.count import SeedCount, StereoKeypoints, count_density, count_multiview
@@ -146,11 +147,7 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
     t_sgbm = np.zeros(len(ds))
     t_det = np.zeros(len(ds))
     it = range(len(ds))
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(ds), desc="views (SGBM + seeds)", unit="view")
+    bar = Progress(len(ds), "views (SGBM + seeds)", "view", enabled=progress)
     for i in it:
         frame = ds[i]
         t0 = time.perf_counter()
@@ -161,8 +158,7 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         t_det[i] = time.perf_counter() - t0
         labels = detection_label_image(disp.shape, sdet.left)
         vc = disparity_to_cloud(disp, frame.left, ds.calib, cfg.cloud, labels)
-        if bar is not None:
-            bar.update(1)
+        bar.advance()
         if len(vc) < MIN_VIEW_POINTS:
             skipped.append({"view": i, "reason": f"only {len(vc)} valid 3D points (min {MIN_VIEW_POINTS})"})
             views.append(None)
@@ -175,8 +171,7 @@ def prepare_scan(root: str | Path, cfg: ReconConfig, progress: bool = True) -> P
         geo = ViewGeometry(reg_xyz, estimate_normals(reg_xyz, NORMAL_RADIUS), so.surface_xyz)
         views.append(PreparedView(vc, so, geo, len(sdet.left),
                                   StereoKeypoints.from_detections(sdet.left, sdet.right, disp)))
-    if bar is not None:
-        bar.close()
+    bar.close()
     if all(v is None for v in views):
         raise InputError("no view has valid disparity in the configured depth range "
                          f"({cfg.cloud.min_depth}-{cfg.cloud.max_depth} m)", root)

@@ -34,6 +34,7 @@ from seedmap.geometry import invert, pose_to_tum
 from seedmap.io.atomic import atomic_write_bytes, atomic_write_text
 from seedmap.io.seedmap_dataset import DatasetWriter, SeedmapDataset
 from seedmap.io.trajectory import write_tum
+from seedmap.progress import Progress
 from seedmap.records import Trajectory
 from seedmap.sim.arm import ArmConfig, arm_yaml_dict, simulate_capture, write_joints_csv
 from seedmap.sim.config import SimConfig, drop_retired
@@ -153,20 +154,14 @@ def simulate_panicle(cfg: PanicleScanConfig, out: Path, overwrite: bool = False,
         atomic_write_bytes(tmp / "gt" / "surface_points.npy", buf.getvalue())
         write_joints_csv(tmp / "joints.csv", cap)
         atomic_write_text(tmp / "arm.yaml", yaml.safe_dump(arm_yaml_dict(cap, cfg.arm), sort_keys=False))
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=cfg.arm.views, desc=f"render {out.name}", unit="view")
+        bar = Progress(cfg.arm.views, f"render {out.name}", "view", enabled=progress)
         for k in range(cfg.arm.views):
             r = render_stereo(world, T_render[k], calib, sim, np.random.default_rng(frame_seeds[k]), 0.0)
             w.write_frame(k, r.left, r.right)
             w.write_gt_instances(k, "left", r.left_labels, r.left_instances)
             w.write_gt_instances(k, "right", r.right_labels, r.right_instances)
-            if bar is not None:
-                bar.update(1)
-        if bar is not None:
-            bar.close()
+            bar.advance()
+        bar.close()
     return out
 
 

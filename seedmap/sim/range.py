@@ -12,6 +12,7 @@ from seedmap import outputs
 from seedmap.config import config_to_yaml
 from seedmap.geometry import pose_to_tum
 from seedmap.io.seedmap_dataset import DatasetWriter
+from seedmap.progress import Progress
 from seedmap.records import Trajectory
 from seedmap.sim.config import ALONG_WOBBLE, ANGLE_WOBBLE_DEG, HEIGHT_WOBBLE, LATERAL_WOBBLE, SimConfig
 from seedmap.sim.render import render_stereo
@@ -88,11 +89,7 @@ def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress:
         w.write_gt_config(config_to_yaml(cfg))
         frames, pids, rows = [], [], []
         it = range(len(traj))
-        bar = None
-        if progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(traj), desc=f"render {out.name}", unit="frame")
+        bar = Progress(len(traj), f"render {out.name}", "frame", enabled=progress)
         for i in it:
             r = render_stereo(world, traj.poses[i], calib, cfg, np.random.default_rng(frame_seeds[i]),
                               float(traj.timestamps[i]))
@@ -103,10 +100,8 @@ def simulate_range(cfg: SimConfig, out: Path, overwrite: bool = False, progress:
             frames.append(np.full(P, i))
             pids.append(np.arange(P))
             rows.append(pose_to_tum(r.panicle_motion) if P else np.zeros((0, 7)))
-            if bar is not None:
-                bar.update(1)
-        if bar is not None:
-            bar.close()
+            bar.advance()
+        bar.close()
         if frames:
             w.write_gt_panicle_poses(np.concatenate(frames), np.concatenate(pids), np.vstack(rows))
         else:

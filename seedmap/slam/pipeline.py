@@ -25,6 +25,7 @@ from seedmap.config import dump_config
 from seedmap.detect.base import ORACLE_DETECTORS, default_detector_name
 from seedmap.errors import SeedmapError
 from seedmap.eval.slam_metrics import SlamMetrics, compute_slam_metrics
+from seedmap.progress import Progress
 from seedmap.records import Trajectory
 from seedmap.slam.config import SlamConfig
 
@@ -124,7 +125,7 @@ def run_slam(
     rows: list[dict] = []
     timings: dict[str, list[float]] = {}
     t_all = time.perf_counter()
-    with _progress(progress, n, f"slam {matcher}") as advance:
+    with Progress(n, f"slam {matcher}", "frame", progress) as bar:
         for i in range(n):
             t0 = time.perf_counter()
             frame = ds[i]
@@ -140,7 +141,7 @@ def run_slam(
                          "stereo": res.n_stereo, "temporal": res.n_temporal, "inliers": res.n_inliers,
                          "landmarks_seen": res.n_landmarks_seen, "ok": int(res.ok)})
             rlog.frame(frame, feats, res, slam)
-            advance()
+            bar.advance()
             if not res.ok:
                 break
     t0 = time.perf_counter()
@@ -171,28 +172,6 @@ def run_slam(
 
                 slam_html_report(tmp, result, gt, lm, rows, timings, dataset)
     return result
-
-
-class _progress:
-    """Rich progress bar (or nothing); yields an ``advance()`` callable."""
-
-    def __init__(self, enabled: bool, total: int, label: str) -> None:
-        self.enabled, self.total, self.label = enabled, total, label
-        self._p = None
-
-    def __enter__(self):
-        if not self.enabled:
-            return lambda: None
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-        self._p = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
-        self._p.start()
-        task = self._p.add_task(self.label, total=self.total)
-        return lambda: self._p.advance(task)
-
-    def __exit__(self, *exc) -> None:
-        if self._p is not None:
-            self._p.stop()
 
 
 def metrics_to_json(m: SlamMetrics) -> str:

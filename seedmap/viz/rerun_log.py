@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from seedmap.errors import InputError
-from seedmap.outputs import check_not_input, check_output_file, is_rerun_recording
+from seedmap.outputs import check_not_input, check_output_file, check_output_parent, is_rerun_recording
 from seedmap.records import Detections, Matches, StereoCalib, Trajectory
 
 __all__ = ["RerunLogger", "check_rrd_path", "ellipse_polylines", "rrd_entity_paths"]
@@ -67,6 +67,9 @@ def check_rrd_path(path: str | Path, inputs: Iterable[str | Path | None] = (), o
 
 def _probe(path: Path) -> None:
     """Create the recording's folder and check that a file can be written there."""
+    if path.is_dir():
+        raise InputError("is a folder; --rerun wants a file name such as run.rrd", path)
+    check_output_parent(path, "rerun recording")  # a file where a folder of the path should be
     probe = path.with_name(f".{path.name}.{os.getpid()}.probe")
     try:  # os.access() says yes to root where the file system refuses (/proc, ro mounts)
         path.parent.mkdir(parents=True, exist_ok=True)

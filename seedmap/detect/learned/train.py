@@ -4,7 +4,7 @@ Both loops share the same machinery: a held-out split (a separate ``val`` source
 ``val_fraction`` of the images — the last frames of a sequence, so no near-duplicate neighbour of a
 training frame is used for validation), deterministic per-step randomness
 (``numpy.random.default_rng([seed, step])``, so a resumed run continues exactly), periodic
-safetensors checkpoints with the optimiser state (``--resume``), a tqdm progress bar and a JSON
+safetensors checkpoints with the optimiser state (``--resume``), a progress bar and a JSON
 lines metrics log (``<kind>_metrics.jsonl``: step, split, losses, seconds per iteration, validation
 metrics). The final weights (``<kind>.safetensors``) carry their architecture config; the segmenter
 is also exported to ONNX (``segmenter.onnx``) for onnxruntime inference.
@@ -44,6 +44,7 @@ from seedmap.detect.learned.weights import (
 )
 from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_write_text
+from seedmap.progress import Progress
 
 
 #: detector: AdamW weight decay
@@ -170,12 +171,6 @@ class _Run:
             f.write(json.dumps(rec) + "\n")
 
 
-def _progress(total: int, start: int, desc: str, enabled: bool):
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=start, desc=desc, unit="it", disable=not enabled)
-
-
 # ================================================================================================
 # detector
 # ================================================================================================
@@ -286,7 +281,7 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
     for k in range(DET_VAL_CROPS if va_idx else 0):
         li = vcache(va_idx[k % len(va_idx)])
         val_items.append(sample_detector_crop(li, cfg.crop, vrng))
-    bar = _progress(cfg.steps, start, "train detector", progress)
+    bar = Progress(cfg.steps, "train detector", "it", enabled=progress, initial=start)
     t_acc, n_acc = 0.0, 0
     last = {}
     for step in range(start + 1, cfg.steps + 1):
@@ -311,8 +306,8 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
         t_acc += dt
         n_acc += 1
         last = {k: v.item() for k, v in losses.items()}
-        bar.update(1)
-        bar.set_postfix(loss=f"{loss.item():.3f}", s_it=f"{dt:.2f}")
+        bar.advance()
+        bar.note(f"loss={loss.item():.3f}, s/it={dt:.2f}")
         if step % cfg.log_every == 0 or step == cfg.steps:
             run.write({"step": step, "split": "train", "loss": loss.item(), **last, "s_per_it": t_acc / n_acc})
             t_acc, n_acc = 0.0, 0
@@ -432,7 +427,7 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
                                         max(1, SEG_VAL_CROPS // min(len(va_idx), 4)), arch, vrng, SEG_BOX_JITTER,
                                         SEG_MIN_AREA_PX) for k in range(min(len(va_idx), 4))]
         val_batch = tuple(np.concatenate([p[j] for p in parts]) for j in range(4))
-    bar = _progress(cfg.steps, start, "train segmenter", progress)
+    bar = Progress(cfg.steps, "train segmenter", "it", enabled=progress, initial=start)
     gen.train()
     disc.train()
     t_acc, n_acc = 0.0, 0
@@ -472,8 +467,8 @@ def train_segmenter(source, out: Path, cfg: SegmenterTrainConfig | None = None, 
         dt = time.perf_counter() - t0
         t_acc += dt
         n_acc += 1
-        bar.update(1)
-        bar.set_postfix(l1=f"{loss_l1.item():.3f}", d=f"{loss_d.item():.3f}")
+        bar.advance()
+        bar.note(f"l1={loss_l1.item():.3f}, d={loss_d.item():.3f}")
         if step % cfg.log_every == 0 or step == cfg.steps:
             run.write({"step": step, "split": "train", "loss_g": loss_g.item(), "loss_gan": loss_gan.item(),
                        "loss_l1": loss_l1.item(), "loss_d": loss_d.item(), "s_per_it": t_acc / n_acc})
