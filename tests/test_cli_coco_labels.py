@@ -114,7 +114,8 @@ def test_bad_coco_is_one_line_naming_the_file_and_leaves_no_folder(tiny_range, t
     assert not out.exists()
 
 
-def test_fast_cnn_on_a_coco_file_says_which_trainers_read_coco(tiny_range, tmp_path, monkeypatch, capsys):
+def test_fast_cnn_on_a_coco_file_without_its_images_names_the_image_folder(tiny_range, tmp_path, monkeypatch,
+                                                                           capsys):
     pytest.importorskip("torch")
     coco, _ = export_coco(tiny_range, frames=(0,))
     p = tmp_path / "labels.json"
@@ -122,5 +123,5 @@ def test_fast_cnn_on_a_coco_file_says_which_trainers_read_coco(tiny_range, tmp_p
     out = tmp_path / "fc"
     assert _run(["train", "fast-cnn", p, "--out", out, "--steps", "1"], monkeypatch) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
-    assert len(err) == 1 and str(p) in err[0] and "train segmenter" in err[0], err
+    assert len(err) == 1 and str(p) in err[0] and "--images-root" in err[0], err
     assert not out.exists()

@@ -13,7 +13,8 @@ from seedmap.errors import SeedmapError
 
 @app.command("detect")
 def detect_cmd(
-    dataset: Path = typer.Argument(..., help="Dataset folder (seedmap layout or any supported format)."),
+    dataset: Path = typer.Argument(..., help="Dataset (seedmap layout or any supported format), an image file, "
+                                             "or a folder of images (PNG/JPEG/TIFF...)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder (must not exist unless --overwrite)."),
     detector: Optional[str] = typer.Option(None, "--detector", "-d",
                                            help="gt (ORACLE, simulated data) | fast (CNN + refiner) | "
@@ -26,7 +27,9 @@ def detect_cmd(
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
 ) -> None:
-    """Detect seeds (boxes, ellipses, keypoints) in every frame: JSON lines + COCO JSON (+ overlays)."""
+    """Detect seeds (boxes, ellipses, keypoints) in every frame or image: JSON lines + COCO JSON (+ overlays).
+
+    Seeds much larger than the training seeds (~5 px): set their size, --set cnn.seed_px=N."""
     from seedmap.config import load_config
     from seedmap.detect.run import DetectRunConfig, run_detect
 
@@ -34,8 +37,10 @@ def detect_cmd(
     detector = detector or cfg.detector or "default"  # a result's config.yaml records what ran
     if weights is None and cfg.weights and detector == cfg.detector:
         weights = Path(cfg.weights)
-    if detector == "gt":  # the oracle reads seedmap's GT layout: say so for real data (was a TypeError traceback)
-        from seedmap.io.seedmap_dataset import SeedmapDataset
+    from seedmap.io.photos import is_photo_input
+
+    if detector == "gt" and not is_photo_input(dataset, cfg.dataset.format):  # the oracle reads seedmap's GT
+        from seedmap.io.seedmap_dataset import SeedmapDataset  # layout: say so for real data (run_detect: images)
 
         SeedmapDataset(dataset)
     if weights is not None:  # only these two read --weights; the others would silently use their own

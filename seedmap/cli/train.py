@@ -195,9 +195,13 @@ def train_cnn_refiner_cmd(
 
 @train_app.command("fast-cnn")
 def train_fast_cnn_cmd(
-    data: List[Path] = typer.Argument(..., help="Simulated training datasets with GT masks (e.g. data/det_s1)."),
+    data: List[Path] = typer.Argument(..., help="Simulated training datasets with GT masks (e.g. data/det_s1) or "
+                                                "COCO .json label files (boxes; masks used where present)."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for fast_cnn.onnx, checkpoint.safetensors, metrics."),
-    val: Optional[List[Path]] = typer.Option(None, "--val", help="Held-out datasets (default: last frame of each)."),
+    val: Optional[List[Path]] = typer.Option(None, "--val", help="Held-out datasets or COCO files (default: the "
+                                                                 "last frame / image of each)."),
+    images_root: Optional[Path] = typer.Option(None, "--images-root",
+                                               help="Folder of the COCO files' images (default: beside each file)."),
     steps: int = typer.Option(5000, "--steps", help="Training steps."),
     batch: int = typer.Option(12, "--batch", help="Crops per step."),
     crop: int = typer.Option(96, "--crop", help="Crop size (px)."),
@@ -215,37 +219,41 @@ def train_fast_cnn_cmd(
                                                       "simulate panicle) when ranges are given too (default: "
                                                       "every image alike)."),
     init: Optional[Path] = typer.Option(None, "--init", help="Start from these fast_cnn .onnx weights "
-                                                              "(fine-tuning) instead of a random initialisation."),
+                                                              "(fine-tuning) instead of a random initialisation; "
+                                                              "fast_cnn.onnx = the shipped field network."),
     lr: float = typer.Option(2e-3, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
 
-    The defaults reproduce the shipped weights from data/det_s1 and det_s31-35, --val data/det_s36."""
+    The defaults reproduce the shipped weights from data/det_s1 and det_s31-35, --val data/det_s36. On your own
+    labelled images: LABELS.json --images-root DIR --init fast_cnn.onnx fine-tunes the shipped network."""
     from seedmap.detect.learned import require_torch
 
     require_torch()
+    from seedmap.detect.runtime import shipped_or_path
     from seedmap.detect.train_cnn import CnnTrainConfig, train_cnn
 
+    init = shipped_or_path(init) if init is not None else None
     for name, v in (("--steps", steps), ("--batch", batch), ("--crop", crop)):
         if v < 1:
             raise SeedmapError(f"{name} must be >= 1, got {v}")
     if not (math.isfinite(lr) and lr > 0):
         raise SeedmapError(f"--lr must be a finite number > 0, got {lr:g}")
     for d in list(data) + list(val or []):
-        if d.is_file() and d.suffix.lower() == ".json":  # said 'dataset folder not found' of an existing file
-            raise SeedmapError(f"{d}: fast-cnn trains on simulated datasets (GT masks); COCO labels are read by "
-                               "`seedmap train detector` and `seedmap train segmenter`")
-        if not d.is_dir():
+        if d.suffix.lower() == ".json":
+            if not d.is_file():
+                raise SeedmapError(f"{d}: COCO label file not found")
+        elif not d.is_dir():
             raise SeedmapError(f"{d}: dataset folder not found")
-    check_resume_dir(out, "training", [*data, *(val or []), init], strict=False)
+    check_resume_dir(out, "training", [*data, *(val or []), init, images_root], strict=False)
     if (out / "fast_cnn.onnx").exists() and not resume:
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
                          iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
                          arm_fraction=arm_fraction, lr=lr,
                          init_weights=str(init) if init else None)
-    m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume)
+    m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume, images_root=images_root)
     mark(out, "training")
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "

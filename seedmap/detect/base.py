@@ -51,6 +51,10 @@ class Detector:
     def detect(self, image: np.ndarray) -> Detections:  # pragma: no cover - interface
         raise SeedmapError(f"detector {self.name!r} does not detect on plain images")
 
+    def settings(self) -> dict:
+        """Settings a result's meta.json records beside the detector's name (none by default)."""
+        return {}
+
     def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
         """Detections in the left and right images of one rectified stereo frame."""
         return StereoDetections(index=frame.index, timestamp=frame.timestamp,

@@ -21,7 +21,7 @@ import numpy as np
 
 from seedmap.detect.base import Detector, check_image, logit, map_to_input, register_detector
 from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path
-from seedmap.detect.config import CnnConfig
+from seedmap.detect.config import TRAINED_SEED_PX, CnnConfig
 from seedmap.detect.runtime import WEIGHTS_DIR, load_session, shipped_or_path
 from seedmap.errors import ConfigError
 from seedmap.records import Detections, StereoDetections, StereoFrame
@@ -54,6 +54,20 @@ def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
     """The ONNX file a detector with config ``cfg`` runs: ``weights``, else ``cfg.weights``, else the shipped network
     of ``cfg.domain``; a bare file name that is no file in the working directory names a shipped file."""
     return shipped_or_path(weights or cfg.weights or default_cnn_path(cfg.domain))
+
+
+def cnn_scale(cfg: CnnConfig, trained_seed_px: float) -> float:
+    """The factor the network's input is resized by: ``trained_seed_px / cfg.seed_px`` when the seed size is set,
+    else ``cfg.scale``."""
+    if cfg.seed_px is None:
+        return float(cfg.scale)
+    if cfg.scale != 1.0:
+        raise ConfigError(f"set cnn.scale ({cfg.scale:g}) or cnn.seed_px ({cfg.seed_px:g}), not both")
+    s = float(trained_seed_px) / float(cfg.seed_px)
+    if s > 4.0:
+        raise ConfigError(f"cnn.seed_px={cfg.seed_px:g}: seeds under {trained_seed_px / 4.0:g} px are too small "
+                          f"for the network (trained on {trained_seed_px:g}-px seeds; at most 4x upscaling)")
+    return s
 
 
 def load_refiner(cfg: CnnConfig, cnn_path: Path, explicit_weights: bool = False) -> CnnRefiner | None:
@@ -165,7 +179,17 @@ class CnnDetector(Detector):
         self.peak_threshold = float(self.cfg.refine_candidates if self.refiner else self.cfg.threshold)
         meta = self.sess.get_modelmeta().custom_metadata_map
         self.info = json.loads(meta.get("info", "{}"))
+        #: the seed diameter (px) the network was trained on: recorded by `seedmap train fast-cnn`, else the
+        #: shipped networks' (TRAINED_SEED_PX of cnn.domain)
+        self.trained_seed_px = float(self.info.get("seed_px") or TRAINED_SEED_PX[self.cfg.domain])
+        #: the network runs on the image resized by this factor (cnn.scale, or set by cnn.seed_px)
+        self.scale = cnn_scale(self.cfg, self.trained_seed_px)
         self._pool = None
+
+    def settings(self) -> dict:
+        """The input scale and the seed size (px of the input images) it assumes, for a result's meta.json."""
+        return {"cnn_scale": self.scale, "seed_px": self.trained_seed_px / self.scale,
+                "trained_seed_px": self.trained_seed_px}
 
     def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
         """Left and right image; with ``cnn.stereo_threads = 2`` the two run concurrently (onnxruntime
@@ -184,11 +208,11 @@ class CnnDetector(Detector):
     def detect(self, image: np.ndarray) -> Detections:
         """Seeds in one RGB image: boxes, sigmoid scores, keypoints (ellipse centres); refined with a refiner.
 
-        With ``cnn.scale`` != 1 the network runs on the image resized by that factor (seeds larger than the
-        training seeds brought to the training size) and the boxes, keypoints and ellipse axes are mapped back to
-        the input's pixels."""
+        With a scale != 1 (``cnn.scale``, or ``cnn.seed_px``) the network runs on the image resized by that factor
+        (seeds brought to the training size) and the boxes, keypoints and ellipse axes are mapped back to the
+        input's pixels."""
         img = check_image(image)
-        s = float(self.cfg.scale)
+        s = self.scale
         if s == 1.0:
             return self._detect(img)
         h, w = img.shape[:2]

@@ -34,6 +34,10 @@ class GtConfig(ConfigModel):
     min_area_px: float | None = None
 
 
+#: typical seed diameter (px, median geometric mean of the GT box sides of detectable seeds) the shipped networks were
+#: trained on: field ranges at 1434x1050 (measured 5.0); arm scans show seeds of about twice the area
+TRAINED_SEED_PX = {"field": 5.0, "arm": 7.0}
+
 #: the fast CNN's heatmap peak threshold without a refiner (both shipped networks)
 CNN_THRESHOLD = 0.45
 
@@ -54,6 +58,10 @@ class CnnConfig(ConfigModel):
     #: run the network on the image resized by this factor (seeds larger than the ~5 px training seeds brought to
     #: the training size); outputs are mapped back to input pixels
     scale: float = Field(1.0, gt=0, le=4)
+    #: the seeds' typical diameter (px, geometric mean of a seed's box sides) in your images: sets the scale to the
+    #: network's training seed size / seed_px (TRAINED_SEED_PX, or the size a ``seedmap train fast-cnn`` network
+    #: records); None = use ``scale``
+    seed_px: float | None = Field(None, gt=0)
     #: refiner: ``auto`` = the shipped one with the shipped field network (else off), ``none`` = off, or a refiner
     #: file trained for the network in use (``seedmap train cnn-refiner``)
     refiner: str = "auto"

@@ -17,6 +17,7 @@ import numpy as np
 from seedmap.errors import InputError
 from seedmap.io.text import read_text
 from seedmap.io.images import read_rgb
+from seedmap.io.photos import read_photo
 
 
 @dataclass
@@ -204,7 +205,7 @@ class CocoSource:
 
     def __getitem__(self, i: int) -> LabelledImage:
         im = self.images[i]
-        img = read_rgb(self.root / im["file_name"])
+        img = read_photo(self.root / im["file_name"])  # as `seedmap detect` reads it (grayscale, 16-bit converted)
         h, w = img.shape[:2]
         labels = np.zeros((h, w), np.int32)
         boxes = []

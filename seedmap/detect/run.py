@@ -10,13 +10,14 @@ from pathlib import Path
 import numpy as np
 
 from seedmap import outputs
-from seedmap.detect.base import default_detector_name, make_detector
+from seedmap.detect.base import ORACLE_DETECTORS, Detector, default_detector_name, make_detector
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses
 from seedmap.detect.io import detection_image_sizes, detection_record, read_detections, write_detection_files
 from seedmap.errors import InputError
 from seedmap.io.atomic import atomic_write_text
 from seedmap.io.images import write_png
+from seedmap.io.photos import PhotoSet, is_photo_input
 from seedmap.progress import track
 
 
@@ -36,11 +37,13 @@ class DetectRunConfig(DetectConfig):
 def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", weights: str | Path | None = None,
                config: DetectConfig | None = None, overlay: bool = False, overwrite: bool = False,
                progress: bool = True, frames: slice | None = None, inputs: Sequence[str | Path | None] = ()) -> Path:
-    """Detect seeds in every frame and camera of ``dataset``; write the detection files into ``out``.
+    """Detect seeds in every frame and camera of ``dataset``, or in every image of an image file or folder
+    (:mod:`seedmap.io.photos`); write the detection files into ``out``.
 
     ``out`` gets ``detections.jsonl`` + ``detections_coco.json`` (see :mod:`seedmap.detect.io`),
-    ``config.yaml`` (the resolved detector config), ``meta.json`` (detector name, oracle flag,
-    timing) and, with ``overlay``, ``overlay/{left,right}/NNNNNN.png`` with the ellipses drawn.
+    ``config.yaml`` (the resolved detector config), ``meta.json`` (detector name, oracle flag, timing, the
+    ``fast`` detector's input scale and seed size) and, with ``overlay``, ``overlay/{left,right}/NNNNNN.png``
+    (images: ``overlay/NAME.png``) with the ellipses drawn. Images keep their names relative to ``dataset``.
     ``inputs``: more files the command read (``--config``, ``--weights``): ``out`` is never one of them.
     """
     from seedmap.config import dump_config
@@ -50,25 +53,18 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
         cfg = DetectConfig.model_validate(cfg.model_dump(exclude={"detector", "weights"}))
     ins = [dataset, *inputs, *outputs.dataset_option_files(cfg.dataset)]
     outputs.check_output_dir(Path(out), "detect", ins, overwrite)
-    seq = cfg.dataset.open(dataset)
+    photos = PhotoSet(dataset) if is_photo_input(dataset, cfg.dataset.format) else None
+    if photos is not None and detector in ORACLE_DETECTORS:
+        raise InputError(f"the {detector} oracle reads a simulated stereo dataset's ground truth; this is an "
+                         "image or a folder of images (use --detector fast)", dataset)
+    seq = photos if photos is not None else cfg.dataset.open(dataset)
     det = make_detector(detector, dataset=seq if detector == "gt" else None, weights=weights, config=cfg)
     idx = list(range(len(seq)))[frames] if frames is not None else list(range(len(seq)))
     if not idx:
         raise InputError("dataset has no frames", dataset)
-    records = []
-    t_det = 0.0
     with outputs.output_dir(Path(out), "detect", ins, overwrite) as tmp:
-        it = track(idx, f"detect ({det.name})", "frame", enabled=progress)
-        for i in it:
-            frame = seq[i]
-            t0 = time.perf_counter()
-            sd = det.detect_stereo(frame)
-            t_det += time.perf_counter() - t0
-            for cam, d, img in (("left", sd.left, frame.left), ("right", sd.right, frame.right)):
-                records.append(detection_record(i, cam, d, frame.timestamp, f"{cam}/{i:06d}.png",
-                                                img.shape[1], img.shape[0]))
-                if overlay:
-                    write_png(tmp / "overlay" / cam / f"{i:06d}.png", draw_ellipses(img, d.ellipses))
+        run = _detect_photos if photos is not None else _detect_frames
+        records, t_det = run(det, seq, idx, tmp if overlay else None, progress)
         write_detection_files(tmp, records)
         used = default_detector_name() if detector in ("default", "auto") else detector
         run_cfg = DetectRunConfig.model_validate({**cfg.model_dump(), "detector": used,
@@ -79,9 +75,45 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
                 "refiner": str(getattr(det, "refiner", None).path) if hasattr(getattr(det, "refiner", None), "path")
                 else None,
                 "images": len(records), "detections": int(sum(r["n"] for r in records)),
-                "ms_per_stereo_frame": 1000.0 * t_det / len(idx)}
+                ("ms_per_image" if photos is not None else "ms_per_stereo_frame"): 1000.0 * t_det / len(idx),
+                **det.settings()}
         atomic_write_text(tmp / "meta.json", json.dumps(meta, indent=2))
     return Path(out)
+
+
+def _detect_frames(det: Detector, seq, idx: list[int], overlay_dir: Path | None,  # noqa: ANN001 - a StereoSequence
+                   progress: bool) -> tuple[list[dict], float]:
+    """Detection records of the stereo frames ``idx`` (left and right) and the seconds spent detecting."""
+    records, t_det = [], 0.0
+    for i in track(idx, f"detect ({det.name})", "frame", enabled=progress):
+        frame = seq[i]
+        t0 = time.perf_counter()
+        sd = det.detect_stereo(frame)
+        t_det += time.perf_counter() - t0
+        for cam, d, img in (("left", sd.left, frame.left), ("right", sd.right, frame.right)):
+            records.append(detection_record(i, cam, d, frame.timestamp, f"{cam}/{i:06d}.png",
+                                            img.shape[1], img.shape[0]))
+            if overlay_dir is not None:
+                write_png(overlay_dir / "overlay" / cam / f"{i:06d}.png", draw_ellipses(img, d.ellipses))
+    return records, t_det
+
+
+def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir: Path | None,
+                   progress: bool) -> tuple[list[dict], float]:
+    """Detection records (camera ``mono``, the image's own name) of the images ``idx`` and the seconds spent
+    detecting. Overlays are ``overlay/NAME.png`` (NAME with its suffix replaced; kept when two names share a stem)."""
+    stems = [str(Path(n).with_suffix(".png")) for n in photos.names]
+    over = stems if len(set(stems)) == len(stems) else [n if n.endswith(".png") else n + ".png" for n in photos.names]
+    records, t_det = [], 0.0
+    for i in track(idx, f"detect ({det.name})", "image", enabled=progress):
+        img = photos.image(i)
+        t0 = time.perf_counter()
+        d = det.detect(img)
+        t_det += time.perf_counter() - t0
+        records.append(detection_record(i, "mono", d, 0.0, photos.names[i], img.shape[1], img.shape[0]))
+        if overlay_dir is not None:
+            write_png(overlay_dir / "overlay" / over[i], draw_ellipses(img, d.ellipses))
+    return records, t_det
 
 
 def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: str | Path | None = None,

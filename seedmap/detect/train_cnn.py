@@ -7,8 +7,9 @@ offset (px) from the pixel to the seed's keypoint. Most of the work runs at half
 stride-2 convolution, two 3x3 layers, one of them dilated for context); a full-resolution skip from
 the stem keeps the box edges pixel-exact, which a 5 px seed needs for IoU >= 0.5.
 
-Targets come from a simulated dataset's ground truth (``gt/masks`` + ``gt/instances``), made per crop
-by :func:`crop_batch` (:class:`CropSpec`):
+Targets come from a simulated dataset's ground truth (``gt/masks`` + ``gt/instances``) or from a user's COCO
+labels (boxes, with or without masks: :mod:`seedmap.detect.cnn_targets`), made per crop by :func:`crop_batch`
+(:class:`CropSpec`):
 
 * heatmap: a Gaussian (sigma ``heat_sigma`` px, wider for seeds larger than 5 px) at the rounded
   keypoint of every instance of at least ``heat_min_area`` visible pixels (the detectable-seed size
@@ -39,6 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
+from seedmap.detect.cnn_targets import (TrainImage, coco_image_targets, image_targets, is_coco_file,
+                                        labels_seed_px, pad_to)
+from seedmap.detect.labels import CocoSource
 from seedmap.errors import InputError
 from seedmap.progress import Progress, track
 
@@ -88,46 +92,6 @@ def build_net(c1: int = 8, c2: int = 16):
 # ------------------------------------------------------------------------------------------------
 
 
-@dataclass
-class TrainImage:
-    """One image with compact per-pixel targets (instance index map + per-instance arrays)."""
-
-    rgb: np.ndarray  # H x W x 3 uint8
-    inst: np.ndarray  # H x W int16: row into the per-instance arrays, -1 = background
-    boxes: np.ndarray  # (N, 4) float32 GT boxes
-    kp: np.ndarray  # (N, 2) float32 keypoint targets (u, v)
-    centers: np.ndarray  # (N, 2) int peak pixels
-    area: np.ndarray  # (N,) float32 visible pixels of each instance
-    arm: bool = False  # from an arm scan (a dataset with arm.yaml: close-up panicle images)
-
-
-def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 1) -> TrainImage:
-    """Targets of one simulated image from its GT label image and instance table.
-
-    Every instance of at least ``min_area`` visible pixels is kept; :func:`crop_batch` decides per
-    crop (after scaling) which ones are heatmap positives, ignored slivers or box-only pixels.
-    """
-    h, w = labels.shape
-    lut = np.full(int(max(labels.max(), inst.label.max(initial=0))) + 1, -1, np.int64)
-    keep = inst.area >= min_area
-    rows = np.flatnonzero(keep)
-    lut[inst.label[rows].astype(np.int64)] = np.arange(len(rows))
-    idx = lut[labels.astype(np.int64)].astype(np.int16)
-    boxes = inst.boxes[rows].astype(np.float32)
-    # keypoint: projected centre where visible, else the centroid of the visible mask
-    cnt = np.bincount(idx[idx >= 0].astype(np.int64), minlength=len(rows)).astype(np.float64)
-    ys, xs = np.nonzero(idx >= 0)
-    li = idx[ys, xs].astype(np.int64)
-    cx = np.bincount(li, xs, len(rows)) / np.maximum(cnt, 1)
-    cy = np.bincount(li, ys, len(rows)) / np.maximum(cnt, 1)
-    vis = inst.center_visible[rows].astype(bool)
-    kp = np.where(vis[:, None], inst.center_uv[rows], np.c_[cx, cy]).astype(np.float32)
-    c = np.round(kp).astype(np.int64)
-    c[:, 0] = np.clip(c[:, 0], 0, w - 1)
-    c[:, 1] = np.clip(c[:, 1], 0, h - 1)
-    return TrainImage(rgb, idx, boxes, kp, c, inst.area[rows].astype(np.float32))
-
-
 def is_arm_scan(dataset: str | Path) -> bool:
     """True for a simulated arm scan (``seedmap simulate panicle``: close-up panicle views, seeds ~2x the
     area of the field images' seeds, flash-saturated), recognised by its ``arm.yaml``."""
@@ -135,27 +99,39 @@ def is_arm_scan(dataset: str | Path) -> bool:
 
 
 def load_training_images(datasets: list[str | Path], frames: dict | None = None, min_area: int = 1,
-                         progress: bool = False) -> list[TrainImage]:
-    """Every (frame, camera) image of the simulated ``datasets`` with its targets (``arm`` set for arm scans)."""
+                         progress: bool = False, images_root: str | Path | None = None) -> list[TrainImage]:
+    """Every (frame, camera) image of the simulated ``datasets`` with its targets (``arm`` set for arm scans); a
+    ``.json`` entry is a COCO label file, its images under ``images_root`` (default: beside it), every image one
+    item (:func:`seedmap.detect.cnn_targets.labelled_targets`). ``frames``: ``{str(dataset): indices}``."""
     from seedmap.io.images import read_rgb
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
+    def sim_item(ds: SeedmapDataset, arm: bool, i: int, cam: str) -> TrainImage:
+        ti = image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam), ds.gt_instances(i, cam),
+                           min_area)
+        ti.arm = arm
+        return ti
+
     items = []
     for d in datasets:
+        if is_coco_file(d):
+            src = CocoSource(d, images_root)
+            items += [(coco_image_targets, src, k) for k in (frames or {}).get(str(d), range(len(src)))]
+            continue
         ds = SeedmapDataset(d)
         if not ds.has_gt:
             raise InputError("dataset has no ground truth (gt/instances/) to train on", d)
         fr = (frames or {}).get(str(d), range(len(ds)))
         arm = is_arm_scan(ds.root)
-        items += [(ds, arm, i, cam) for i in fr for cam in ("left", "right")]
-    items = track(items, "cnn targets", "img", enabled=progress)
-    out = []
-    for ds, arm, i, cam in items:
-        ti = image_targets(read_rgb(ds.image_path(i, cam)), ds.gt_label_image(i, cam), ds.gt_instances(i, cam),
-                           min_area)
-        ti.arm = arm
-        out.append(ti)
-    return out
+        items += [(sim_item, ds, arm, i, cam) for i in fr for cam in ("left", "right")]
+    return [it[0](*it[1:]) for it in track(items, "cnn targets", "img", enabled=progress)]
+
+
+def training_set_size(dataset: str | Path, images_root: str | Path | None = None) -> int:
+    """Frames of a simulated dataset, or images of a COCO label file (``.json``)."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    return len(CocoSource(dataset, images_root)) if is_coco_file(dataset) else len(SeedmapDataset(dataset))
 
 
 def image_weights(images: list[TrainImage], arm_fraction: float | None) -> np.ndarray | None:
@@ -461,12 +437,15 @@ def export_onnx(net, path: Path, info: dict | None = None) -> Path:  # noqa: ANN
 
 
 def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str | Path] | None = None,
-              cfg: CnnTrainConfig | None = None, resume: bool = False, progress: bool = True) -> dict:
-    """Train :class:`SeedNet` on simulated ranges; write ``out/fast_cnn.onnx`` + checkpoint + metrics.
+              cfg: CnnTrainConfig | None = None, resume: bool = False, progress: bool = True,
+              images_root: str | Path | None = None) -> dict:
+    """Train :class:`SeedNet` on simulated ranges or COCO label files (``.json``, images under ``images_root``);
+    write ``out/fast_cnn.onnx`` + checkpoint + metrics.
 
     Held-out split: ``val_sets`` when given, else the last frame of every training set (its left
-    and right image). ``resume`` continues from ``out/checkpoint.safetensors``. Returns the
-    metrics dict (also written to ``out/train_metrics.json``).
+    and right image; a COCO file's last image). ``resume`` continues from ``out/checkpoint.safetensors``.
+    Returns the metrics dict (also written to ``out/train_metrics.json``); with COCO labels the network records
+    their typical seed size (``seed_px``, px), which ``cnn.seed_px`` scales other images to.
     """
     import torch
 
@@ -477,21 +456,21 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     torch.set_num_threads(max(1, int(cfg.threads)))
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    from seedmap.io.seedmap_dataset import SeedmapDataset
-
     if val_sets:
-        tr = load_training_images(train_sets, None, 1, progress)
-        va = load_training_images(val_sets, None, 1, progress)
+        tr = load_training_images(train_sets, None, 1, progress, images_root)
+        va = load_training_images(val_sets, None, 1, progress, images_root)
     else:
         fr_tr, fr_va = {}, {}
         for d in train_sets:
-            n = len(SeedmapDataset(d))
+            n = training_set_size(d, images_root)
             if n < 2:
-                raise InputError("needs at least 2 frames for a held-out split (or pass --val)", d)
+                raise InputError(f"needs at least 2 {'images' if is_coco_file(d) else 'frames'} for a held-out "
+                                 "split (or pass --val)", d)
             fr_tr[str(d)] = range(n - 1)
             fr_va[str(d)] = [n - 1]
-        tr = load_training_images(train_sets, fr_tr, 1, progress)
-        va = load_training_images(train_sets, fr_va, 1, progress)
+        tr = load_training_images(train_sets, fr_tr, 1, progress, images_root)
+        va = load_training_images(train_sets, fr_va, 1, progress, images_root)
+    tr, va = [pad_to(im, cfg.crop) for im in tr], [pad_to(im, cfg.crop) for im in va]
     spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
     vrng = np.random.default_rng(cfg.seed + 1)
     w_tr, w_va = image_weights(tr, cfg.arm_fraction), image_weights(va, cfg.arm_fraction)
@@ -548,6 +527,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         return [float(a) for a in v]
 
     prev_cpu = sum(h.get("cpu_s", 0.0) for h in history[-1:]) if history else 0.0
+    initial_val_loss = validate()[0] if step == 0 else None
     while step < cfg.steps:
         x, *tg = (torch.from_numpy(np.ascontiguousarray(a))
                   for a in crop_batch(tr, cfg.batch, cfg.crop, rng, cfg.seed_fraction, spec=spec, weights=w_tr))
@@ -571,10 +551,13 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
 
     info = {"train_sets": [str(d) for d in train_sets], "val_sets": [str(d) for d in (val_sets or [])],
             "config": asdict(cfg), "steps": step,
-            "train_images": len(tr), "val_images": len(va),
+            "train_images": len(tr), "val_images": len(va), "initial_val_loss": initial_val_loss,
             "cpu_s": prev_cpu + time.process_time() - t_cpu0,
             "wall_s_this_run": time.perf_counter() - t_wall0,
             "final": history[-1] if history else None}
+    seed_px = labels_seed_px([im for im in tr if im.labelled])
+    if seed_px is not None:
+        info["seed_px"] = seed_px
     export_onnx(net, out / "fast_cnn.onnx", info)
     metrics = {**info, "history": history}
     atomic_write_text(out / "train_metrics.json", json.dumps(metrics, indent=1))

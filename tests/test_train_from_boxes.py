@@ -1,0 +1,74 @@
+"""``seedmap train fast-cnn LABELS.json``: the fast CNN learns from a user's COCO boxes (masks optional).
+
+A box without a mask trains the seed's inscribed ellipse, with its keypoint at the box centre; a fine-tune of the
+shipped network on a tiny COCO export of a simulated range lowers the held-out loss, and the network it writes runs
+through ``seedmap detect --weights`` on a folder of the images, at the seed size its labels had.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from seedmap.detect.cnn_targets import box_ellipse_labels, labelled_targets
+from seedmap.detect.labels import LabelledImage
+from seedmap.detect.train_cnn import CropSpec, crop_batch
+
+from helpers.cli import run_cli
+from helpers.coco import export_coco
+
+
+def test_a_box_without_mask_trains_its_inscribed_ellipse_and_centre():
+    img = np.zeros((40, 50, 3), np.uint8)
+    boxes = np.array([[10, 20, 17, 25], [30, 5, 33, 8]], np.float64)  # 7 x 5 px, 3 x 3 px (x1, y1 exclusive)
+    lab = box_ellipse_labels(boxes, np.zeros((40, 50), np.int32))
+    ys, xs = np.nonzero(lab == 1)
+    assert xs.min() == 10 and xs.max() == 16 and ys.min() == 20 and ys.max() == 24  # inside its box, touching it
+    assert lab[20, 10] == 0 and lab[22, 13] == 1  # no box corners: an ellipse
+    assert (lab == 2).sum() >= 5
+    ti = labelled_targets(LabelledImage(img, boxes, np.zeros((40, 50), np.int32)))
+    assert np.allclose(ti.kp, [[13.0, 22.0], [31.0, 6.0]]) and ti.labelled
+    # a tiny labelled seed is still a heatmap peak (the user labelled it): a peak at each box centre
+    _, heat, reg, mask, ign = crop_batch([ti], 1, 40, np.random.default_rng(0), seed_fraction=0.0, augment=False,
+                                         spec=CropSpec())
+    assert ign.sum() == 0
+    peaks = np.argwhere(heat[0] >= 0.999)
+    assert len(peaks) == 2
+
+
+def test_fine_tuning_from_boxes_lowers_the_loss_and_detect_runs_the_network(tiny_range, tmp_path, monkeypatch):
+    pytest.importorskip("torch")
+    coco, _ = export_coco(tiny_range, frames=(0, 1))
+    for a in coco["annotations"][::2]:  # half the seeds as boxes only, the others with their masks
+        a.pop("segmentation")
+    labels = tmp_path / "labels.json"
+    labels.write_text(json.dumps(coco))
+    out = tmp_path / "ft"
+    assert run_cli(["train", "fast-cnn", labels, "--images-root", tiny_range, "--out", out, "--init", "fast_cnn.onnx",
+                    "--steps", "40", "--batch", "8", "--lr", "1e-3"], monkeypatch) == 0
+    m = json.loads((out / "train_metrics.json").read_text())
+    assert m["train_images"] == 1 and m["val_images"] == 1  # the last image held out
+    assert m["final"]["val_loss"] < m["initial_val_loss"]
+    boxes = np.array([a["bbox"] for a in coco["annotations"] if a["image_id"] == 1])
+    assert m["seed_px"] == pytest.approx(np.median(np.sqrt(boxes[:, 2] * boxes[:, 3])))
+    det = tmp_path / "det"
+    assert run_cli(["detect", tiny_range / "left", "--weights", out / "fast_cnn.onnx", "--detector", "fast",
+                    "--out", det], monkeypatch) == 0
+    meta = json.loads((det / "meta.json").read_text())
+    assert meta["trained_seed_px"] == pytest.approx(m["seed_px"]) and meta["cnn_scale"] == 1.0
+    assert meta["images"] == len(list((tiny_range / "left").glob("*.png"))) and meta["detections"] > 0
+
+
+def test_one_labelled_image_and_no_validation_set_is_one_line(tiny_range, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("torch")
+    coco, _ = export_coco(tiny_range, frames=(0,))
+    p = tmp_path / "labels.json"
+    p.write_text(json.dumps(coco))
+    out = tmp_path / "fc"
+    assert run_cli(["train", "fast-cnn", p, "--images-root", tiny_range, "--out", out, "--steps", "1"],
+                   monkeypatch) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
+    assert len(err) == 1 and str(p) in err[0] and "held-out" in err[0], err
+    assert not out.exists()
