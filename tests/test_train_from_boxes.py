@@ -72,3 +72,18 @@ def test_one_labelled_image_and_no_validation_set_is_one_line(tiny_range, tmp_pa
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
     assert len(err) == 1 and str(p) in err[0] and "held-out" in err[0], err
     assert not out.exists()
+
+
+def test_labels_made_on_a_resized_copy_are_one_line(tiny_range, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("torch")
+    coco, _ = export_coco(tiny_range, frames=(0, 1))
+    coco["images"][0]["width"] *= 2  # the labelling tool saw another size
+    coco["images"][0]["height"] *= 2
+    p = tmp_path / "labels.json"
+    p.write_text(json.dumps(coco))
+    out = tmp_path / "fc"
+    assert run_cli(["train", "fast-cnn", p, "--images-root", tiny_range, "--out", out, "--steps", "1"],
+                   monkeypatch) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
+    assert len(err) == 1 and str(p) in err[0] and "000000.png" in err[0] and "labels say" in err[0], err
+    assert not out.exists()
