@@ -85,14 +85,14 @@ def score(est: list[dict], gt: list[dict]) -> dict:
         e, g = est[i], gt[j]
         per.append({
             "panicle_id": e["panicle_id"], "gt_panicle_id": g["panicle_id"], "quality": e["quality"],
-            "landmarks": e["landmarks"], "seeds": g["seeds"], "seeds_visible": g["seeds_visible"],
+            "landmarks": e["landmarks"], "length_m": e["length_m"], "width_m": e["width_m"], "seeds": g["seeds"], "seeds_visible": g["seeds_visible"],
             "seeds_est": e["seeds_est"],
             "position_err_m": math.dist((e["x_m"], e["y_m"], e["height_m"]), (g["x_m"], g["y_m"], g["height_m"])),
             "along_err_m": e["x_m"] - g["x_m"], "across_err_m": e["y_m"] - g["y_m"],
             "height_err_m": e["height_m"] - g["height_m"],
             "length_rel_err": e["length_m"] / g["length_m"] - 1.0, "width_rel_err": e["width_m"] / g["width_m"] - 1.0,
             "seeds_rel_err": e["seeds_est"] / g["seeds"] - 1.0,
-            "seeds_rel_err_visible": e["seeds_est"] / max(g["seeds_visible"], 1) - 1.0,
+            "landmarks_rel_err_visible": e["landmarks"] / max(g["seeds_visible"], 1) - 1.0,
         })
     n_true = sum(p["seeds"] for p in per)
     n_vis = sum(p["seeds_visible"] for p in per)
@@ -105,7 +105,7 @@ def score(est: list[dict], gt: list[dict]) -> dict:
         "across_err_median_m": ab("across_err_m"), "height_err_median_m": ab("height_err_m"),
         "length_rel_err_median": ab("length_rel_err"), "width_rel_err_median": ab("width_rel_err"),
         "seeds_mape": float(np.mean([abs(p["seeds_rel_err"]) for p in per])) if per else None,
-        "seeds_mape_visible": float(np.mean([abs(p["seeds_rel_err_visible"]) for p in per])) if per else None,
+        "landmarks_mape_visible": float(np.mean([abs(p["landmarks_rel_err_visible"]) for p in per])) if per else None,
         "visible_fraction": n_vis / n_true if n_true else None,
         "landmarks_per_visible_seed": sum(p["landmarks"] for p in per) / n_vis if n_vis else None,
         "per_panicle": per,
@@ -123,20 +123,22 @@ def evaluate_phenotype(result: Path, dataset: Path, cfg) -> dict:
     return m
 
 
-def fit_calibration(eval_jsons: list[Path]) -> dict:
-    """Least squares ``log(seeds) = intercept + slope log(landmarks)`` over the matched ``ok`` panicles of
+def fit_calibration(eval_jsons: list[Path], features: tuple[str, ...] = ("landmarks", "length_m")) -> dict:
+    """Least squares ``log(seeds) = intercept + sum coef_k log(feature_k)`` over the matched ``ok`` panicles of
     ``seedmap eval phenotype --json`` files; ``sigma_log`` is the residual standard deviation."""
     x, y = [], []
     for p in eval_jsons:
         for r in json.loads(Path(p).read_text(encoding="utf-8"))["per_panicle"]:
             if r["quality"] == "ok":
-                x.append(math.log(r["landmarks"]))
+                x.append([math.log(r[k]) for k in features])
                 y.append(math.log(r["seeds"]))
-    if len(x) < 3:
+    if len(x) < len(features) + 3:
         raise InputError(f"{len(x)} matched ok panicles: too few to fit a calibration", eval_jsons[0])
-    slope, intercept = np.polyfit(x, y, 1)
-    res = np.asarray(y) - (intercept + slope * np.asarray(x))
+    a = np.c_[np.ones(len(x)), np.asarray(x)]
+    coef, *_ = np.linalg.lstsq(a, np.asarray(y), rcond=None)
+    res = np.asarray(y) - a @ coef
     return {"kind": "seedmap-phenotype-calibration", "version": 1,
-            "model": "log(seeds) = intercept + slope * log(landmarks)", "intercept": float(intercept),
-            "slope": float(slope), "sigma_log": float(res.std(ddof=2)), "panicles": len(x),
+            "model": "log(seeds) = intercept + sum coef[k] * log(k)", "intercept": float(coef[0]),
+            "coef": {k: float(c) for k, c in zip(features, coef[1:])},
+            "sigma_log": float(res.std(ddof=len(features) + 1)), "panicles": len(x),
             "samples": [Path(p).stem for p in eval_jsons]}

@@ -12,6 +12,8 @@ import numpy as np
 
 from seedmap.records import Trajectory
 
+#: half-width (m) of the stretch of camera path whose mean height is the local camera height
+GROUND_WINDOW_M = 0.25
 #: the world counts as z-up (ground at z = 0, e.g. a run anchored to the simulator's poses) when the cameras'
 #: mean up direction is within ~11 degrees of +z
 UP_COS = 0.98
@@ -19,14 +21,36 @@ UP_COS = 0.98
 
 @dataclass
 class RowFrame:
-    """``p_row = axes @ (p_world - origin)``; ``height_source`` says where z = 0 (the ground) came from."""
+    """``p_row = axes @ (p_world - origin)``; ``height_source`` says where z = 0 (the ground) came from;
+    ``cameras``: the camera positions and optical axes (N x 6) in the row frame."""
 
     axes: np.ndarray
     origin: np.ndarray
     height_source: str
+    cameras: np.ndarray
 
     def to_row(self, xyz: np.ndarray) -> np.ndarray:
         return (np.asarray(xyz, float).reshape(-1, 3) - self.origin) @ self.axes.T
+
+    def ground(self, x: float, y: float) -> float:
+        """Ground height (row frame) under the point seen at ``(x, y)``: the camera rides at a constant height
+        above the ground looking sideways, so the ground follows the height of the cameras' line of sight at
+        depth ``y`` (mean over the cameras within GROUND_WINDOW_M along the row), and is 0 at the start.
+        This also cancels the map's slow drift in height and pitch, which moves the cameras' lines of sight and
+        the landmarks together."""
+        c = self.cameras
+        if len(c) == 0:
+            return 0.0
+
+        def sight(x0: float) -> float:
+            near = np.abs(c[:, 0] - x0) <= GROUND_WINDOW_M
+            if not near.any():
+                near = np.abs(c[:, 0] - x0) == np.abs(c[:, 0] - x0).min()
+            q = c[near]
+            depth = (y - q[:, 1]) / np.maximum(q[:, 4], 1e-3)  # along the optical axis to the row
+            return float(np.mean(q[:, 2] + depth * q[:, 5]))
+
+        return sight(x) - sight(float(c[0, 0]))
 
 
 def row_frame(traj: Trajectory, mount_height_m: float) -> RowFrame:
@@ -35,13 +59,14 @@ def row_frame(traj: Trajectory, mount_height_m: float) -> RowFrame:
     A world whose z already points up (the cameras' mean up within ~11 degrees of +z) is taken as is
     (``height_source = "world"``: the ground is the world's z = 0). Otherwise x is the direction of travel,
     z the cameras' mean up, the origin the first camera's position ``mount_height_m`` above the ground
-    (``"camera_mount"``); y = z x x, so y = 0 is the camera path."""
+    (``"camera_mount"``); y = z x x, so y = 0 is the camera path. Heights are taken above
+    :meth:`RowFrame.ground`."""
     if len(traj) == 0:
-        return RowFrame(np.eye(3), np.zeros(3), "world")
+        return RowFrame(np.eye(3), np.zeros(3), "world", np.zeros((0, 6)))
     up = -traj.poses[:, :3, 1].mean(axis=0)
     up /= max(np.linalg.norm(up), 1e-12)
     if up[2] >= UP_COS:
-        return RowFrame(np.eye(3), np.zeros(3), "world")
+        return RowFrame(np.eye(3), np.zeros(3), "world", np.c_[traj.positions, traj.poses[:, :3, 2]])
     pos = traj.positions
     travel = pos[-1] - pos[0]
     travel = travel - (travel @ up) * up
@@ -49,12 +74,13 @@ def row_frame(traj: Trajectory, mount_height_m: float) -> RowFrame:
         travel = traj.poses[0, :3, 0] - (traj.poses[0, :3, 0] @ up) * up
     ex = travel / np.linalg.norm(travel)
     ey = np.cross(up, ex)
-    return RowFrame(np.stack([ex, ey, up]), pos[0] - mount_height_m * up, "camera_mount")
+    axes, origin = np.stack([ex, ey, up]), pos[0] - mount_height_m * up
+    return RowFrame(axes, origin, "camera_mount", np.c_[(pos - origin) @ axes.T, traj.poses[:, :3, 2] @ axes.T])
 
 
 @dataclass
 class Shape:
-    """Centre (mean), principal axis (pointing up), extents along the axis (length) and across it in the view
+    """Centre (on the principal axis through the mean, half-way between the extreme points), principal axis (pointing up), extents along the axis (length) and across it in the view
     plane (width), tilt of the axis from vertical."""
 
     centre: np.ndarray
@@ -79,7 +105,9 @@ def panicle_shape(xyz_row: np.ndarray) -> Shape:
         across = np.array([1.0, 0.0, 0.0])
     across /= np.linalg.norm(across)
     tilt = float(np.degrees(np.arccos(np.clip(axis[2], -1.0, 1.0))))
-    return Shape(c, axis, float(np.ptp(q @ axis)), float(np.ptp(q @ across)), tilt)
+    t = q @ axis
+    # the middle of the axial extent, not the mean: seeds are not spread evenly along the axis
+    return Shape(c + 0.5 * (t.max() + t.min()) * axis, axis, float(np.ptp(t)), float(np.ptp(q @ across)), tilt)
 
 
 def hull_volume(xyz: np.ndarray) -> float:

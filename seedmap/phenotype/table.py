@@ -30,6 +30,8 @@ MAX_SPLIT = 4
 #: fraction of the narrower span and the height gap between them is below MERGE_GAP_M (m)
 MERGE_OVERLAP = 0.5
 MERGE_GAP_M = 0.05
+#: panicle columns a seed-count calibration may use (in logs)
+COUNT_FEATURES = ("landmarks", "length_m", "width_m")
 #: folder of the shipped seed-count calibrations
 CALIBRATIONS = Path(__file__).parent / "calibrations"
 
@@ -75,18 +77,22 @@ def load_calibration(name: str) -> dict:
         raise InputError(f"seed-count calibration not found (shipped: {shipped})", p)
     try:
         cal = json.loads(p.read_text(encoding="utf-8"))
-        float(cal["intercept"]), float(cal["slope"]), float(cal["sigma_log"])
-    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
-        raise InputError("not a seed-count calibration (JSON with intercept, slope, sigma_log)", p) from None
+        float(cal["intercept"]), float(cal["sigma_log"])
+        if not set(cal["coef"]) <= set(COUNT_FEATURES):
+            raise KeyError
+        [float(v) for v in cal["coef"].values()]
+    except (ValueError, KeyError, TypeError, AttributeError, UnicodeDecodeError):
+        raise InputError("not a seed-count calibration (JSON with intercept, coef of "
+                         f"{'/'.join(COUNT_FEATURES)}, sigma_log)", p) from None
     return cal
 
 
-def estimate_seeds(landmarks: int, cal: dict) -> tuple[float, float]:
-    """Seed count and its 1-sigma uncertainty: ``log N = intercept + slope log(landmarks)`` with log-normal
-    residuals of standard deviation ``sigma_log``."""
-    if landmarks <= 0:
+def estimate_seeds(features: dict, cal: dict) -> tuple[float, float]:
+    """Seed count and its 1-sigma uncertainty: ``log N = intercept + sum coef_k log(feature_k)`` with
+    log-normal residuals of standard deviation ``sigma_log``."""
+    if any(features[k] <= 0 for k in cal["coef"]):
         return 0.0, 0.0
-    n = math.exp(float(cal["intercept"]) + float(cal["slope"]) * math.log(landmarks))
+    n = math.exp(float(cal["intercept"]) + sum(float(c) * math.log(features[k]) for k, c in cal["coef"].items()))
     return n, n * math.sqrt(math.expm1(float(cal["sigma_log"]) ** 2))
 
 
@@ -112,20 +118,21 @@ def join_fragments(xz: np.ndarray, cluster: np.ndarray) -> np.ndarray:
     return out
 
 
-def split_clusters(x_along: np.ndarray, cluster: np.ndarray, cfg: PhenotypeConfig) -> list[tuple[np.ndarray, bool]]:
+def split_clusters(xyz_row: np.ndarray, cluster: np.ndarray, cfg: PhenotypeConfig) -> list[tuple[np.ndarray, bool]]:
     """Landmark index arrays, one per panicle, and whether each may still hold merged panicles.
 
-    Clusters with fewer than ``min_landmarks`` are dropped; one wider than ``split_width_m`` along the row is
-    split by k-means on the along-row coordinate (scipy), k = ceil(width / split_width_m), when every part keeps
-    ``min_landmarks``."""
+    Clusters with fewer than ``min_landmarks`` are dropped; one wider than ``split_width_m`` (across its
+    principal axis, :func:`panicle_shape`) is split by k-means on the along-row coordinate (scipy),
+    k = ceil(width / split_width_m), when every part keeps ``min_landmarks``."""
     from scipy.cluster.vq import kmeans2
 
+    x_along = xyz_row[:, 0]
     out: list[tuple[np.ndarray, bool]] = []
     for c in np.unique(cluster[cluster >= 0]):
         idx = np.flatnonzero(cluster == c)
         if len(idx) < cfg.min_landmarks:
             continue
-        extent = float(np.ptp(x_along[idx]))
+        extent = panicle_shape(xyz_row[idx]).width_m
         if extent <= cfg.split_width_m:
             out.append((idx, False))
             continue
@@ -133,7 +140,7 @@ def split_clusters(x_along: np.ndarray, cluster: np.ndarray, cfg: PhenotypeConfi
         _, lab = kmeans2(x_along[idx].reshape(-1, 1), k, minit="++", seed=0)
         parts = [idx[lab == j] for j in range(k)]
         if all(len(p) >= cfg.min_landmarks for p in parts):
-            out += [(p, float(np.ptp(x_along[p])) > cfg.split_width_m) for p in parts]
+            out += [(p, panicle_shape(xyz_row[p]).width_m > cfg.split_width_m) for p in parts]
         else:
             out.append((idx, True))
     out.sort(key=lambda t: float(np.median(x_along[t[0]])))
@@ -143,7 +150,7 @@ def split_clusters(x_along: np.ndarray, cluster: np.ndarray, cfg: PhenotypeConfi
 def panicle_rows(lm: Landmarks, frame: RowFrame, cfg: PhenotypeConfig, cal: dict) -> list[dict]:
     """One dict per panicle with the :data:`COLUMNS` (sorted along the row)."""
     p = frame.to_row(lm.xyz)
-    groups = split_clusters(p[:, 0], join_fragments(p[:, [0, 2]], lm.cluster), cfg)
+    groups = split_clusters(p, join_fragments(p[:, [0, 2]], lm.cluster), cfg)
     if not groups:
         return []
     lo, hi = float(p[:, 0].min()), float(p[:, 0].max())
@@ -161,12 +168,12 @@ def panicle_rows(lm: Landmarks, frame: RowFrame, cfg: PhenotypeConfig, cal: dict
             flags.append("merged")
         if len(idx) < cfg.few_landmarks:
             flags.append("few")
-        n, sd = estimate_seeds(len(idx), cal)
+        n, sd = estimate_seeds({"landmarks": len(idx), "length_m": s.length_m, "width_m": s.width_m}, cal)
         rows.append({
             "panicle_id": i, "x_m": s.centre[0],
             # seeds seen from one side: the mean of a round cross-section's front half lies width/pi nearer
             "y_m": s.centre[1] + s.width_m / math.pi,
-            "height_m": s.centre[2], "length_m": s.length_m, "width_m": s.width_m,
+            "height_m": s.centre[2] - frame.ground(float(s.centre[0]), float(s.centre[1])), "length_m": s.length_m, "width_m": s.width_m,
             "hull_volume_cm3": hull_volume(q) * 1e6,
             "ellipsoid_volume_cm3": ellipsoid_volume(s.length_m, s.width_m) * 1e6,
             "tilt_deg": s.tilt_deg, "landmarks": len(idx), "frames": nf, "seeds_est": n, "seeds_sd": sd,
