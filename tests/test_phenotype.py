@@ -115,7 +115,8 @@ def test_command_writes_the_table_and_plot_summaries(tmp_path, monkeypatch):
     assert json.loads((tmp_path / "o" / "summary.json").read_text())["panicles"] == 4
 
 
-@pytest.mark.parametrize("case", ["no_result", "bad_landmarks", "bad_plots", "out_exists", "bad_set"])
+@pytest.mark.parametrize("case", ["no_result", "bad_landmarks", "bad_plots", "out_exists", "bad_set",
+                                  "bad_calibration", "eval_no_dataset", "eval_json_is_input"])
 def test_command_errors_are_one_line(tmp_path, monkeypatch, capsys, case):
     res = write_result(tmp_path / "r")
     args = ["phenotype", res, "--out", tmp_path / "o"]
@@ -129,8 +130,15 @@ def test_command_errors_are_one_line(tmp_path, monkeypatch, capsys, case):
     elif case == "out_exists":
         (tmp_path / "o").mkdir()
         (tmp_path / "o" / "f").write_text("x")
-    else:
+    elif case == "bad_set":
         args += ["--set", "min_landmarks=0"]
+    elif case == "bad_calibration":
+        (tmp_path / "c.json").write_text('{"intercept": 1, "coef": {"leaves": 1}, "sigma_log": 0.1}')
+        args += ["--set", f"calibration={tmp_path / 'c.json'}"]
+    elif case == "eval_no_dataset":
+        args = ["eval", "phenotype", res, tmp_path / "missing"]
+    else:
+        args = ["eval", "phenotype", res, tmp_path / "missing", "--json", res / "landmarks.csv"]
     assert run_cli(args, monkeypatch) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "Traceback" not in err
