@@ -6,7 +6,7 @@ One module per command group; importing them registers their commands, in the or
 lists them. Heavy libraries are imported inside the commands, so ``seedmap --help`` stays fast.
 """
 
-from seedmap.cli import detect, slam, recon, bag, batch  # noqa: F401  (top-level commands, in --help order)
+from seedmap.cli import detect, slam, phenotype, recon, bag, batch  # noqa: F401  (top-level commands, in --help order)
 from seedmap.cli import simulate, train, evaluate, benchmark, config  # noqa: F401  (command groups)
 from seedmap.cli.app import app, main
 

@@ -28,6 +28,7 @@ from seedmap.errors import SeedmapError
 #: config kind -> (module, class, the commands that read it with --config)
 KINDS: dict[str, tuple[str, str, str]] = {
     "slam": ("seedmap.slam.config", "SlamConfig", "seedmap slam, batch, eval associate"),
+    "phenotype": ("seedmap.phenotype.config", "PhenotypeConfig", "seedmap phenotype, eval phenotype"),
     "detect": ("seedmap.detect.run", "DetectRunConfig", "seedmap detect"),
     "reconstruct": ("seedmap.recon.config", "ReconConfig", "seedmap reconstruct, count"),
     "simulate-range": ("seedmap.sim.config", "SimConfig", "seedmap simulate range"),
