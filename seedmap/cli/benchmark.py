@@ -35,6 +35,7 @@ def _bench_print(records, out: Path) -> None:
     from rich.table import Table
 
     from seedmap.eval.benchmark import summarize
+    from seedmap.eval.benchmark.report import method_label
 
     summ = summarize(records)
     con = Console()
@@ -46,9 +47,9 @@ def _bench_print(records, out: Path) -> None:
             def pct(v):
                 return "–" if v is None else f"{100 * v:.0f}%"
             if not s["available"]:
-                t.add_row(m, "n/a", "n/a", "n/a", "n/a")
+                t.add_row(method_label(m), "n/a", "n/a", "n/a", "n/a")
                 continue
-            t.add_row(m, pct(s["mean_fraction"]), pct(s["mean_gt_fraction"]),
+            t.add_row(method_label(m), pct(s["mean_fraction"]), pct(s["mean_gt_fraction"]),
                       "–" if s["mean_ate_m"] is None else f"{s['mean_ate_m']:.3f}",
                       "n/a" if s["ms_per_frame"] is None else f"{s['ms_per_frame']:.0f}")
         con.print(t)

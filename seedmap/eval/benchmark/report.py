@@ -85,6 +85,11 @@ def summarize(records: Sequence[RunRecord]) -> dict[str, dict[str, dict[str, flo
     return out
 
 
+def method_label(m: str) -> str:
+    """A method as reports show it: the ground-truth detector (``seeds+gt``) is labelled ORACLE."""
+    return f"{m} (ORACLE)" if m.endswith("+gt") else m
+
+
 def md_table(header: list[str], rows: list[list[str]]) -> str:
     """A Markdown table."""
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
@@ -106,7 +111,7 @@ def scenario_tables(records: Sequence[RunRecord], scenario: str) -> str:
     names = _ranges_in(rs)
     by = {(r.range_name, r.method): r for r in rs}
     summ = summarize(rs)[scenario]
-    header = ["range (m)"] + methods
+    header = ["range (m)"] + [method_label(m) for m in methods]
     parts = []
 
     def block(title: str, attr: str, frac_attr: str | None, digits: int = 2) -> str:
@@ -155,7 +160,7 @@ def side_by_side_table(records: Sequence[RunRecord]) -> str:
         pub = _pct(published_mean_fraction(key)) if key else "–"
         s = summ[m]
         na = all(r.status == "n/a" for r in rs if r.method == m)
-        rows.append([m, "n/a" if na else _pct(s["mean_fraction"]), "n/a" if na else _pct(s["mean_gt_fraction"]),
+        rows.append([method_label(m), "n/a" if na else _pct(s["mean_fraction"]), "n/a" if na else _pct(s["mean_gt_fraction"]),
                      pub])
     rows.append(["orb-slam2 (not run here)", "–", "–", _pct(published_mean_fraction("orb-slam2"))])
     return "**Mean fraction of range mapped: simulated paper ranges vs published (real field data)**\n\n" + \
