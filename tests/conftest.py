@@ -40,13 +40,9 @@ def cnn_range(tmp_path_factory):
 def arm_scan_6_views(tmp_path_factory):
     """A 6-view arm scan of panicle seed 3 at camera scale 0.18, written by ``seedmap simulate panicle`` once per run
     (read only)."""
-    from helpers.cli import run_cli
+    from helpers.cli import run_cli_ok
 
     out = tmp_path_factory.mktemp("arm") / "p3"
-    mp = pytest.MonkeyPatch()
-    try:
-        assert run_cli(["simulate", "panicle", "--seed", "3", "--views", "6", "--out", out, "-q",
-                        "--set", "sim.camera.scale=0.18"], mp) == 0
-    finally:
-        mp.undo()
+    run_cli_ok(["simulate", "panicle", "--seed", "3", "--views", "6", "--out", out, "-q", "--set",
+                "sim.camera.scale=0.18"])
     return out

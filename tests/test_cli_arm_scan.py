@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from helpers.cli import run_cli as _run
+from helpers.cli import run_cli as _run, run_cli_ok
 
 
 def _error_line(capsys) -> str:
@@ -40,11 +40,7 @@ def user_scan(tmp_path_factory):
 @pytest.fixture(scope="module")
 def user_result(user_scan, tmp_path_factory):
     out = tmp_path_factory.mktemp("arm_res") / "rec"
-    mp = pytest.MonkeyPatch()
-    try:
-        assert _run(["reconstruct", user_scan, "--detector", "fast", "-q", "--out", out], mp) == 0
-    finally:
-        mp.undo()
+    run_cli_ok(["reconstruct", user_scan, "--detector", "fast", "-q", "--out", out])
     return out
 
 

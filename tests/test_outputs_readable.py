@@ -13,17 +13,13 @@ import numpy as np
 import pytest
 import yaml
 
-from helpers.cli import run_cli as _run
+from helpers.cli import run_cli as _run, run_cli_ok
 
 
 @pytest.fixture(scope="module")
 def slam_result(tiny_range, tmp_path_factory):
     out = tmp_path_factory.mktemp("slam") / "r"
-    mp = pytest.MonkeyPatch()
-    try:
-        assert _run(["slam", tiny_range, "--detector", "fast", "-q", "--out", out], mp) == 0
-    finally:
-        mp.undo()
+    run_cli_ok(["slam", tiny_range, "--detector", "fast", "-q", "--out", out])
     return out
 
 

@@ -15,3 +15,13 @@ def run_cli(args: list, monkeypatch) -> int:
     with pytest.raises(SystemExit) as e:
         cli.main()
     return int(e.value.code or 0)
+
+
+def run_cli_ok(args: list) -> None:
+    """``seedmap ARGS`` in-process outside a test function (module or session fixtures); it must exit 0."""
+    mp = pytest.MonkeyPatch()
+    try:
+        code = run_cli(args, mp)
+    finally:
+        mp.undo()
+    assert code == 0, f"seedmap {' '.join(str(a) for a in args)} exited {code}"
