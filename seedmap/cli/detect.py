@@ -31,16 +31,17 @@ def detect_cmd(
 
     Seeds much larger than the training seeds (~5 px): set their size, --set cnn.seed_px=N."""
     from seedmap.config import load_config
+    from seedmap.detect import is_oracle_detector
     from seedmap.detect.run import DetectRunConfig, run_detect
+    from seedmap.io.photos import is_photo_input
 
     cfg = load_config(DetectRunConfig, config, set_ or [])
     detector = detector or cfg.detector or "default"  # a result's config.yaml records what ran
     if weights is None and cfg.weights and detector == cfg.detector:
         weights = Path(cfg.weights)
-    from seedmap.io.photos import is_photo_input
-
-    if detector == "gt" and not is_photo_input(dataset, cfg.dataset.format):  # the oracle reads seedmap's GT
-        from seedmap.io.seedmap_dataset import SeedmapDataset  # layout: say so for real data (run_detect: images)
+    # the oracle reads seedmap's GT layout: say so for real data (run_detect says it for images)
+    if is_oracle_detector(detector) and not is_photo_input(dataset, cfg.dataset.format):
+        from seedmap.io.seedmap_dataset import SeedmapDataset
 
         SeedmapDataset(dataset)
     if weights is not None:  # only these two read --weights; the others would silently use their own

@@ -80,12 +80,21 @@ def map_to_input(boxes: np.ndarray, ellipses: np.ndarray, sx: float, sy: float,
 # name -> factory(**kwargs) -> Detector ; factories import their heavy modules lazily
 _REGISTRY: dict[str, Callable[..., Detector]] = {}
 _HELP: dict[str, str] = {}
+_ORACLES: set[str] = set()
 
 
-def register_detector(name: str, factory: Callable[..., Detector], help: str = "") -> None:
-    """Make ``factory(dataset=, weights=, config=)`` available as detector ``name`` (``help``: one line)."""
+def register_detector(name: str, factory: Callable[..., Detector], help: str = "", oracle: bool = False) -> None:
+    """Make ``factory(dataset=, weights=, config=)`` available as detector ``name`` (``help``: one line;
+    ``oracle``: it reads ground truth instead of pixels, like its detectors' ``is_oracle``)."""
     _REGISTRY[name] = factory
     _HELP[name] = help
+    if oracle:
+        _ORACLES.add(name)
+
+
+def is_oracle_detector(name: str) -> bool:
+    """Whether the detector registered as ``name`` reads ground truth instead of pixels."""
+    return name in _ORACLES
 
 
 def available_detectors() -> list[str]:
@@ -103,14 +112,10 @@ def default_weights_path() -> Path:
     return Path(__file__).with_name("weights") / "detector.safetensors"
 
 
-#: detectors that read the simulator's ground truth instead of the images
-ORACLE_DETECTORS = frozenset({"gt"})
-
-
 def detector_label(name: str, oracle: bool | None = None) -> str:
     """The detector's name as reports and the console show it: ``gt (ORACLE)`` for the ground-truth oracle."""
     if oracle is None:
-        oracle = name in ORACLE_DETECTORS
+        oracle = is_oracle_detector(name)
     return f"{name} (ORACLE)" if oracle else name
 
 

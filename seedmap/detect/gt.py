@@ -89,4 +89,5 @@ def _factory(dataset=None, weights=None, config=None) -> GtDetector:
     return GtDetector(dataset, config.gt if config is not None else None)
 
 
-register_detector("gt", _factory, "ORACLE: ground-truth masks of a simulated dataset (ellipse per GT mask)")
+register_detector("gt", _factory, "ORACLE: ground-truth masks of a simulated dataset (ellipse per GT mask)",
+                  oracle=True)

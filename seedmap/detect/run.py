@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap import outputs
-from seedmap.detect.base import ORACLE_DETECTORS, Detector, default_detector_name, make_detector
+from seedmap.detect.base import Detector, default_detector_name, is_oracle_detector, make_detector
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses
 from seedmap.detect.io import detection_image_sizes, detection_record, read_detections, write_detection_files
@@ -54,11 +54,11 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
     ins = [dataset, *inputs, *outputs.dataset_option_files(cfg.dataset)]
     outputs.check_output_dir(Path(out), "detect", ins, overwrite)
     photos = PhotoSet(dataset) if is_photo_input(dataset, cfg.dataset.format) else None
-    if photos is not None and detector in ORACLE_DETECTORS:
+    if photos is not None and is_oracle_detector(detector):
         raise InputError(f"the {detector} oracle reads a simulated stereo dataset's ground truth; this is an "
                          "image or a folder of images (use --detector fast)", dataset)
     seq = photos if photos is not None else cfg.dataset.open(dataset)
-    det = make_detector(detector, dataset=seq if detector == "gt" else None, weights=weights, config=cfg)
+    det = make_detector(detector, dataset=seq if is_oracle_detector(detector) else None, weights=weights, config=cfg)
     idx = list(range(len(seq)))[frames] if frames is not None else list(range(len(seq)))
     if not idx:
         raise InputError("dataset has no frames", dataset)

@@ -22,7 +22,7 @@ import numpy as np
 
 from seedmap import outputs
 from seedmap.config import dump_config
-from seedmap.detect.base import ORACLE_DETECTORS, default_detector_name
+from seedmap.detect.base import default_detector_name
 from seedmap.errors import SeedmapError
 from seedmap.eval.slam_metrics import SlamMetrics, compute_slam_metrics
 from seedmap.progress import Progress
@@ -157,7 +157,7 @@ def run_slam(
         traj, gt, frames=n, lost_frame=slam.lost_frame, lost_reason=slam.lost_reason,
         range_length=range_length_of(dataset), ms_per_frame=ms, online=online,
         matcher=matcher, detector=detector if det is not None else "", backend=backend_name, landmarks=len(lm),
-        oracle_detector=det is not None and detector in ORACLE_DETECTORS,
+        oracle_detector=bool(getattr(det, "is_oracle", False)),
     )
     mpf = {k: np.asarray([r[k] for r in rows], np.int64) for k in ("frame", "stereo", "temporal", "inliers")}
     result = SlamResult(metrics, traj, out, mpf)

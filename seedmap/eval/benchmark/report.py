@@ -12,6 +12,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from seedmap.config import config_to_yaml
+from seedmap.detect.base import detector_label
 from seedmap.eval.benchmark.spec import CSV_FIELDS, BenchmarkConfig, RunRecord, safe_name
 from seedmap.eval.published import (
     PAPER_RANGE_LENGTHS,
@@ -86,8 +87,9 @@ def summarize(records: Sequence[RunRecord]) -> dict[str, dict[str, dict[str, flo
 
 
 def method_label(m: str) -> str:
-    """A method as reports show it: the ground-truth detector (``seeds+gt``) is labelled ORACLE."""
-    return f"{m} (ORACLE)" if m.endswith("+gt") else m
+    """A method as reports show it: ``seeds+<detector>`` with the detector labelled ORACLE where it is one."""
+    matcher, plus, detector = m.partition("+")
+    return f"{matcher}+{detector_label(detector)}" if plus else m
 
 
 def md_table(header: list[str], rows: list[list[str]]) -> str:
