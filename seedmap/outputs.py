@@ -25,7 +25,7 @@ from pathlib import Path
 from seedmap import __version__
 from seedmap.errors import InputError
 from seedmap.io import detect_format
-from seedmap.io.atomic import WriteError
+from seedmap.io.atomic import WriteError, atomic_write_text
 
 #: name of the marker file written into every output folder
 MARKER = ".seedmap-output.json"
@@ -50,12 +50,6 @@ DATASET_FILE_FIELDS = ("calib", "right_calib", "poses")
 
 _PARTIAL = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.(?P<tok>[0-9a-f]{8})\.partial$")
 _OLD_PARTIAL = re.compile(r"^\.(?P<name>.+)\.[A-Za-z0-9_]{8}\.partial$")  # tempfile.mkdtemp names
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def resolved(p: Path) -> Path:
@@ -108,8 +102,8 @@ def output_kind(folder: Path) -> str | None:
 
 
 def write_marker(folder: Path, kind: str) -> None:
-    """Write the marker of a ``kind`` output into ``folder``."""
-    (Path(folder) / MARKER).write_text(json.dumps({"kind": kind, "seedmap": __version__}) + "\n", encoding="utf-8")
+    """Write the marker of a ``kind`` output into ``folder`` (atomically: a resumed folder may be live)."""
+    atomic_write_text(Path(folder) / MARKER, json.dumps({"kind": kind, "seedmap": __version__}) + "\n")
 
 
 def _pid_alive(pid: int) -> bool:
@@ -173,13 +167,18 @@ def dataset_option_files(options: object | None) -> list[str]:
     return [v for v in (getattr(options, k, None) for k in DATASET_FILE_FIELDS) if v]
 
 
-def check_output_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (), overwrite: bool = False) -> None:
-    """Everything :func:`output_dir` checks before it writes, for commands that fail early."""
-    out = Path(out)
+def _check_folder_target(out: Path, inputs: Iterable[str | Path | None]) -> None:
+    """An output folder path: not an input, creatable, and not an existing file or link."""
     check_not_input(out, inputs)
     check_output_parent(out)
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise InputError("output path exists and is not a folder", out)
+
+
+def check_output_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (), overwrite: bool = False) -> None:
+    """Everything :func:`output_dir` checks before it writes, for commands that fail early."""
+    out = Path(out)
+    _check_folder_target(out, inputs)
     if not out.exists() or not any(out.iterdir()):
         return
     if not overwrite:
@@ -219,7 +218,7 @@ def output_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (),
     tmp = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}.partial")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp.mkdir(mode=0o777 & ~_umask())
+        tmp.mkdir()  # 0o777 less the umask, like any new folder
     except OSError as e:
         raise _os_error(e, out) from None
     try:
@@ -243,10 +242,7 @@ def output_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (),
 def check_resume_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (), strict: bool = True) -> None:
     """What :func:`resume_dir` checks, for commands that create the folder later (training)."""
     out = Path(out)
-    check_not_input(out, inputs)
-    check_output_parent(out)
-    if out.is_symlink() or (out.exists() and not out.is_dir()):
-        raise InputError("output path exists and is not a folder", out)
+    _check_folder_target(out, inputs)
     if out.exists() and any(out.iterdir()):
         found = output_kind(out)
         if found != kind and (strict or found is not None):
@@ -261,12 +257,10 @@ def check_resume_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] =
 def mark(out: Path, kind: str) -> None:
     """Create ``out`` (if needed) with its marker (kept when it has one)."""
     out = Path(out)
-    try:
+    with os_errors(out):
         out.mkdir(parents=True, exist_ok=True)
         if read_marker(out) is None:
-            write_file_atomic(out / MARKER, (json.dumps({"kind": kind, "seedmap": __version__}) + "\n").encode())
-    except OSError as e:
-        raise _os_error(e, out) from None
+            write_marker(out, kind)
 
 
 def resume_dir(out: Path, kind: str, inputs: Iterable[str | Path | None] = (), strict: bool = True) -> Path:
@@ -307,26 +301,6 @@ def check_output_file(path: Path, inputs: Iterable[str | Path | None] = (), over
     if written_by_seedmap is not None and not written_by_seedmap(path):
         raise InputError(f"was not written by seedmap; --overwrite replaces only seedmap's own {what}s (pick "
                          "another path)", path)
-
-
-def write_file_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary name beside ``path``, then rename; OS errors become one line."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(tmp, "wb") as f:
-            f.write(data)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except OSError as e:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise _os_error(e, path) from None
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
 
 
 def is_rerun_recording(path: Path) -> bool:

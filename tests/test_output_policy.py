@@ -20,7 +20,6 @@ from seedmap.outputs import (
     output_dir,
     output_kind,
     read_marker,
-    write_file_atomic,
 )
 
 
@@ -166,7 +165,7 @@ def test_results_of_older_versions_are_recognised_by_their_files(tmp_path):
 
 def test_output_file_policy(tmp_path):
     rec = tmp_path / "run.rrd"
-    write_file_atomic(rec, b"RRF2" + b"\0" * 16)
+    rec.write_bytes(b"RRF2" + b"\0" * 16)
     assert is_rerun_recording(rec)
     with pytest.raises(InputError, match="--overwrite"):
         check_output_file(rec, written_by_seedmap=is_rerun_recording)

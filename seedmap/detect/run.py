@@ -158,5 +158,6 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
     d["dataset"] = str(Path(dataset).resolve())
     d["min_gt_area_px"] = float(min_gt_area)
     text = json.dumps(d, indent=2, default=lambda x: float(x) if isinstance(x, np.floating) else x)
-    outputs.write_file_atomic(out, text.encode("utf-8"))
+    with outputs.os_errors(out):
+        atomic_write_text(out, text)
     return m, out
