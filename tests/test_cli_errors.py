@@ -211,7 +211,7 @@ def _kitti(root: Path, p3_tx: float) -> Path:
 
 def test_real_layout_messages(tmp_path, monkeypatch, capfd):
     from seedmap.io import open_dataset
-    from seedmap.io.common import check_timestamps
+    from seedmap.io.timestamps import check_timestamps
 
     # KITTI: a right projection with +fx*b said "P2[0,3] = 12" (P2 is KITTI's LEFT colour camera) and a zero
     # baseline is not blamed on swapped cameras

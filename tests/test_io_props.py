@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from seedmap.errors import SeedmapError
 from seedmap.io.calibration import CameraModel, StereoRig, load_rig, parse_kitti_calib, rectify, save_calib_yaml
-from seedmap.io.common import read_times_txt, write_times_txt
+from seedmap.io.common import write_times_txt
+from seedmap.io.timestamps import read_times_txt
 from seedmap.io.euroc import read_euroc_csv
 from seedmap.io.sync import match_stamps
 from seedmap.io.trajectory import read_kitti, read_tum, write_kitti, write_tum

@@ -12,7 +12,6 @@ import numpy as np
 from seedmap.errors import InputError
 from seedmap.io.calibration import RectifyMaps, StereoRig, check_image_size, rectify
 from seedmap.io.images import imdecode_quiet
-from seedmap.io.timestamps import check_timestamps, read_times_txt  # noqa: F401  (re-exported)
 from seedmap.records import StereoCalib, StereoFrame
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
@@ -96,8 +95,9 @@ def natural_key(p: Path) -> tuple:
     return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name))
 
 
-def list_images(folder: Path) -> list[Path]:
-    return sorted((p for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()),
+def list_images(folder: Path, suffixes: Sequence[str] = IMAGE_SUFFIXES) -> list[Path]:
+    """The files directly in ``folder`` with one of ``suffixes``, sorted by name (``img2`` before ``img10``)."""
+    return sorted((p for p in Path(folder).iterdir() if p.suffix.lower() in suffixes and p.is_file()),
                   key=natural_key)
 
 

@@ -22,9 +22,10 @@ from seedmap.errors import InputError
 from seedmap.io.calib_formats import _arr
 from seedmap.io.calibration import (parse_euroc_pair, read_yaml_any, rectified_rotation,
                                     warn_implausible_baseline)
+from seedmap.io.common import LoaderWarnings, RectifiedPairs
 from seedmap.io.registry import construct, register_loader
-from seedmap.io.common import LoaderWarnings, RectifiedPairs, check_timestamps
 from seedmap.io.sync import match_stamps
+from seedmap.io.timestamps import check_timestamps
 from seedmap.records import Trajectory
 
 

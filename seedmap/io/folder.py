@@ -21,9 +21,9 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.calibration import StereoRig, load_rig
-from seedmap.io.common import (LoaderWarnings, RectifiedPairs, check_timestamps, list_images, read_image_rgb,
-                               read_times_txt)
+from seedmap.io.common import LoaderWarnings, RectifiedPairs, list_images, read_image_rgb
 from seedmap.io.registry import construct, register_loader
+from seedmap.io.timestamps import check_timestamps, read_times_txt
 from seedmap.records import StereoCalib, Trajectory
 
 CAMERA_DIRS = (("left", "right"), ("cam0", "cam1"), ("image_left", "image_right"))

@@ -15,8 +15,9 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.io.calibration import kitti_cam_offset, parse_kitti_calib
-from seedmap.io.common import LoaderWarnings, RectifiedPairs, list_images, read_image_rgb, read_times_txt
+from seedmap.io.common import LoaderWarnings, RectifiedPairs, list_images, read_image_rgb
 from seedmap.io.registry import construct, register_loader
+from seedmap.io.timestamps import read_times_txt
 from seedmap.io.trajectory import read_kitti
 from seedmap.records import Trajectory
 

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from seedmap.errors import InputError
-from seedmap.io.common import IMAGE_SUFFIXES, natural_key, to_rgb
+from seedmap.io.common import IMAGE_SUFFIXES, list_images, to_rgb
 from seedmap.io.images import imdecode_quiet
 from seedmap.io.registry import detect_format
 
@@ -25,15 +25,9 @@ PHOTO_SUFFIXES = (*IMAGE_SUFFIXES, ".webp")
 TWELVE_BIT_MAX = 4095
 
 
-def is_photo(path: str | Path) -> bool:
-    """True for a file whose suffix is an image format (:data:`PHOTO_SUFFIXES`)."""
-    p = Path(path)
-    return p.suffix.lower() in PHOTO_SUFFIXES and p.is_file()
-
-
 def list_photos(folder: str | Path) -> list[Path]:
     """The image files directly in ``folder`` (not in subfolders), sorted by name (``img2`` before ``img10``)."""
-    return sorted((p for p in Path(folder).iterdir() if is_photo(p)), key=natural_key)
+    return list_images(Path(folder), PHOTO_SUFFIXES)
 
 
 def is_photo_input(path: str | Path, fmt: str | None = None) -> bool:
