@@ -159,7 +159,8 @@ def _tracked_files() -> list[Path]:
 
 
 def test_the_project_speaks_only_of_itself():
-    """No work-period words ("session 12", "s13 tags") in names or text; versions, commits and dates instead."""
+    """No words of work periods (numbered work sittings, run tags in file names) in names or text; versions, commits
+    and dates instead."""
     word = re.compile(r"\bsessions?[ -]?\d|\bsessions\b|\b(this|that|earlier|later|previous|next|each|every|one|"
                       r"same|last|first|second|a|the|work|per) session\b", re.IGNORECASE)
     me = Path(__file__).resolve()

@@ -18,7 +18,7 @@ def run_cli(args: list, monkeypatch) -> int:
 
 
 def run_cli_ok(args: list) -> None:
-    """``seedmap ARGS`` in-process outside a test function (module or session fixtures); it must exit 0."""
+    """``seedmap ARGS`` in-process outside a test function (fixtures shared by a module or the whole run); it must exit 0."""
     mp = pytest.MonkeyPatch()
     try:
         code = run_cli(args, mp)

@@ -162,7 +162,8 @@ def side_by_side_table(records: Sequence[RunRecord]) -> str:
         pub = _pct(published_mean_fraction(key)) if key else "–"
         s = summ[m]
         na = all(r.status == "n/a" for r in rs if r.method == m)
-        rows.append([method_label(m), "n/a" if na else _pct(s["mean_fraction"]), "n/a" if na else _pct(s["mean_gt_fraction"]),
+        rows.append([method_label(m), "n/a" if na else _pct(s["mean_fraction"]),
+                     "n/a" if na else _pct(s["mean_gt_fraction"]),
                      pub])
     rows.append(["orb-slam2 (not run here)", "–", "–", _pct(published_mean_fraction("orb-slam2"))])
     return "**Mean fraction of range mapped: simulated paper ranges vs published (real field data)**\n\n" + \
