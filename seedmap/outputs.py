@@ -38,13 +38,14 @@ LEGACY_FILES: dict[str, tuple[str, ...]] = {
     "reconstruct": ("config.yaml", "metrics.json", "seeds.csv"),
     "count": ("count.json",),
     "dataset": ("calib.yaml", "times.txt", "gt/config.yaml"),
+    "photos": (),
     "benchmark": ("config.yaml", "results.csv"),
     "tune": ("config.yaml", "tune.json"),
     "batch": ("summary.md", "summary.json"),
     "training": ("config.yaml",),
 }
 #: kinds whose folders are datasets (a loader recognises them): --overwrite may re-render them
-DATASET_KINDS = frozenset({"dataset", "panicle-scan"})
+DATASET_KINDS = frozenset({"dataset", "panicle-scan", "photos"})
 #: fields of a dataset options section (seedmap.io.options.DatasetOptions) that name input files
 DATASET_FILE_FIELDS = ("calib", "right_calib", "poses")
 

@@ -1,4 +1,4 @@
-"""``seedmap simulate range|stats|panicle``: simulated datasets with ground truth (seedmap.sim)."""
+"""``seedmap simulate range|stats|panicle|photos``: simulated datasets with ground truth (seedmap.sim)."""
 
 from __future__ import annotations
 
@@ -99,3 +99,32 @@ def simulate_panicle_cmd(
         raise
     path = simulate_panicle(cfg, out, overwrite=overwrite, progress=not quiet, inputs=[config])
     typer.echo(f"wrote {path}")
+
+
+@simulate_app.command("photos")
+def simulate_photos_cmd(
+    out: Path = typer.Option(..., "--out", "-o", help="Folder to create: images + labels.json (COCO)."),
+    count: Optional[int] = typer.Option(None, "--count", "-n", help="Number of photos (default 20)."),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (photo i depends only on it and i)."),
+    split: Optional[str] = typer.Option(None, "--split", help="train (default) or heldout: backgrounds, lights and "
+                                                              "varieties never used for training."),
+    config: Optional[Path] = ConfigOpt,
+    set_: Optional[List[str]] = SetOpt,
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace photos seedmap simulated."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Simulate labelled grain photos: loose grain, piles and panicles on varied backgrounds and light (COCO)."""
+    from seedmap.config import load_config
+    from seedmap.errors import ConfigError
+    from seedmap.sim.photos import PhotoSimConfig, simulate_photos
+
+    extra = list(set_ or [])
+    for key, v in (("count", count), ("seed", seed), ("split", split)):
+        if v is not None:
+            extra.append(f"{key}={v}")
+    cfg = load_config(PhotoSimConfig, config, extra)
+    try:
+        path = simulate_photos(cfg, out, overwrite=overwrite, progress=not quiet, inputs=[config])
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+    typer.echo(f"wrote {path} ({cfg.count} photos, labels.json)")

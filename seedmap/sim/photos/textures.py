@@ -1,0 +1,248 @@
+"""Procedural backgrounds of grain photos: surfaces loose grain lies on and the scenes panicles stand in.
+
+Every generator returns an albedo image ``(h, w, 3)`` float32 in [0, 1] at the photo's resolution, scaled to the
+image's seed size ``seed_px`` where the texture has a physical scale (a weave's threads, pebbles, leaves).
+Generators are registered in :data:`BACKGROUNDS` with the split they belong to: ``train`` backgrounds are what the
+shipped networks see, ``heldout`` ones are never trained on and measure how detection copes with a surface it
+has not seen. The reasoning behind each and its parameters: docs/method/photos.md.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import cv2
+import numpy as np
+
+Rng = np.random.Generator
+#: name -> (split, generator(rng, h, w, seed_px) -> albedo)
+BACKGROUNDS: dict[str, tuple[str, Callable[[Rng, int, int, float], np.ndarray]]] = {}
+
+
+def background(name: str, split: str):  # noqa: ANN201 - decorator
+    """Register a background generator under ``name`` in ``split`` (train or heldout)."""
+
+    def deco(fn: Callable) -> Callable:
+        BACKGROUNDS[name] = (split, fn)
+        return fn
+
+    return deco
+
+
+def backgrounds(split: str) -> list[str]:
+    """The registered background names of ``split``, sorted (a stable order for seeded draws)."""
+    return sorted(k for k, (s, _) in BACKGROUNDS.items() if s == split)
+
+
+def noise(rng: Rng, h: int, w: int, cell: float) -> np.ndarray:
+    """Smooth value noise in [0, 1] with features ~``cell`` px: uniform noise on a coarse grid, cubic-upsampled."""
+    gh, gw = max(2, int(np.ceil(h / max(cell, 1.0))) + 2), max(2, int(np.ceil(w / max(cell, 1.0))) + 2)
+    g = rng.random((gh, gw)).astype(np.float32)
+    up = cv2.resize(g, (int(round(gw * cell)), int(round(gh * cell))), interpolation=cv2.INTER_CUBIC)
+    return np.clip(up[:h, :w] if up.shape[0] >= h and up.shape[1] >= w else cv2.resize(g, (w, h)), 0, 1)
+
+
+def fbm(rng: Rng, h: int, w: int, cell: float, octaves: int = 4) -> np.ndarray:
+    """Fractal noise: octaves of :func:`noise`, each half the size and half the weight, in [0, 1]."""
+    acc = np.zeros((h, w), np.float32)
+    tot = 0.0
+    for k in range(octaves):
+        a = 0.5 ** k
+        acc += a * noise(rng, h, w, max(cell / 2 ** k, 1.5))
+        tot += a
+    return acc / tot
+
+
+def tint(gray: np.ndarray, colour) -> np.ndarray:  # noqa: ANN001
+    """A grey pattern ``(h, w)`` times an RGB colour -> ``(h, w, 3)`` float32."""
+    return (gray[..., None] * np.asarray(colour, np.float32)[None, None]).astype(np.float32)
+
+
+def random_colour(rng: Rng, sat: tuple[float, float] = (0.1, 0.7), val: tuple[float, float] = (0.25, 0.9)) -> np.ndarray:
+    """A random RGB colour from hue, saturation and value ranges."""
+    hsv = np.array([[[rng.uniform(0, 180), rng.uniform(*sat) * 255, rng.uniform(*val) * 255]]], np.float32)
+    return cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32) / 255.0
+
+
+def _folds(rng: Rng, h: int, w: int, amount: float) -> np.ndarray:
+    """Low-frequency shading of a draped or crumpled surface: 1 +- ``amount``."""
+    return (1.0 + amount * (2 * fbm(rng, h, w, max(h, w) / 3, 3) - 1)).astype(np.float32)
+
+
+def _weave(rng: Rng, h: int, w: int, period: float, gap: float, twill: bool) -> np.ndarray:
+    """Over/under threads of period ``period`` px; ``gap`` = dark space between threads; ``twill`` = diagonal."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    x = xx + (fbm(rng, h, w, period * 6, 2) - 0.5) * period * 0.6
+    y = yy + (fbm(rng, h, w, period * 6, 2) - 0.5) * period * 0.6
+    cx, cy = np.floor(x / period), np.floor(y / period)
+    fx, fy = x / period - cx, y / period - cy
+    over = ((cx + cy) % 2 == 0) if not twill else (((cx - cy) % 3) == 0)
+    tx = np.sin(np.pi * fy) ** 0.6  # a warp thread's round profile across it
+    ty = np.sin(np.pi * fx) ** 0.6
+    v = np.where(over, tx, ty)
+    v = v * (1 - gap) + gap * np.minimum(np.sin(np.pi * fx), np.sin(np.pi * fy)) ** 2 * 0.3
+    fibre = 0.85 + 0.15 * noise(rng, h, w, 1.5)
+    return (v * fibre).astype(np.float32)
+
+
+@background("cloth", "train")
+def cloth(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Woven cloth of any colour: threads 0.15-0.6 seed diameters wide, folds."""
+    p = max(2.0, seed_px * rng.uniform(0.15, 0.6))
+    pat = 0.55 + 0.45 * _weave(rng, h, w, p, rng.uniform(0.0, 0.3), bool(rng.random() < 0.3))
+    return tint(pat * _folds(rng, h, w, 0.25), random_colour(rng))
+
+
+@background("paper", "train")
+def paper(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """White, grey or kraft paper: fine fibres, faint blotches."""
+    c = [np.array([0.92, 0.91, 0.88]), np.array([0.7, 0.7, 0.7]), np.array([0.62, 0.48, 0.32])][int(rng.integers(3))]
+    g = 0.93 + 0.07 * fbm(rng, h, w, max(2.0, seed_px * 0.2), 3)
+    return tint(g * _folds(rng, h, w, 0.08), c * rng.uniform(0.85, 1.05))
+
+
+@background("wood", "train")
+def wood(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A wooden table or board: growth rings warped by noise, along a random direction."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    a = rng.uniform(0, np.pi)
+    u = xx * np.cos(a) + yy * np.sin(a)
+    v = -xx * np.sin(a) + yy * np.cos(a)
+    period = seed_px * rng.uniform(0.6, 3.0)
+    warp = (fbm(rng, h, w, seed_px * 8, 3) - 0.5) * period * 4
+    rings = 0.5 + 0.5 * np.sin(2 * np.pi * (v + warp + 0.02 * u) / period)
+    g = 0.7 + 0.3 * rings ** 2 * (0.8 + 0.2 * noise(rng, h, w, 2))
+    c = np.array([0.55, 0.36, 0.2]) * rng.uniform(0.6, 1.4)
+    return np.clip(tint(g, c), 0, 1)
+
+
+def _blobs(rng: Rng, img: np.ndarray, n: int, size: tuple[float, float], colour_fn: Callable[[], np.ndarray],
+           shade: bool = True) -> None:
+    """Draw ``n`` rough rounded blobs (pebbles, clods, aggregate) of diameter in ``size`` px into ``img``."""
+    h, w = img.shape[:2]
+    for _ in range(n):
+        d = rng.uniform(*size)
+        cx, cy = rng.uniform(0, w), rng.uniform(0, h)
+        ax, ay = d / 2 * rng.uniform(0.7, 1.0), d / 2 * rng.uniform(0.5, 1.0)
+        r = int(np.ceil(max(ax, ay))) + 1
+        x0, x1, y0, y1 = max(0, int(cx) - r), min(w, int(cx) + r + 1), max(0, int(cy) - r), min(h, int(cy) + r + 1)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+        t = rng.uniform(0, np.pi)
+        u = ((xx - cx) * np.cos(t) + (yy - cy) * np.sin(t)) / ax
+        v = (-(xx - cx) * np.sin(t) + (yy - cy) * np.cos(t)) / ay
+        rr = u * u + v * v
+        m = np.clip((1 - rr) * max(ax, ay), 0, 1)[..., None]
+        c = colour_fn()
+        if shade:
+            c = c[None, None] * (0.75 + 0.35 * np.sqrt(np.clip(1 - rr, 0, 1))[..., None] - 0.15 * v[..., None])
+        img[y0:y1, x0:x1] = img[y0:y1, x0:x1] * (1 - m) + m * c
+
+
+@background("soil", "train")
+def soil(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Bare soil: brown fractal noise, clods and a few light pebbles of seed size and larger (hard negatives)."""
+    c = np.array([0.42, 0.3, 0.2]) * rng.uniform(0.5, 1.3)
+    img = tint(0.6 + 0.4 * fbm(rng, h, w, seed_px * 2, 5), c)
+    n = int(h * w / (seed_px * seed_px) * rng.uniform(0.002, 0.02))
+    _blobs(rng, img, n, (seed_px * 0.8, seed_px * 3), lambda: c * rng.uniform(0.5, 1.6))
+    _blobs(rng, img, n // 4, (seed_px * 0.7, seed_px * 2), lambda: np.full(3, rng.uniform(0.4, 0.75)))
+    return np.clip(img, 0, 1)
+
+
+def _leaves(rng: Rng, img: np.ndarray, seed_px: float, n: int, lit: float) -> None:
+    """Overlapping leaf blades (long lanceolate strips with a pale midrib) drawn into ``img``."""
+    h, w = img.shape[:2]
+    for _ in range(n):
+        L = seed_px * rng.uniform(15, 60)
+        W = seed_px * rng.uniform(1.5, 5)
+        cx, cy, a = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(0, np.pi)
+        r = int(L / 2) + 2
+        x0, x1, y0, y1 = max(0, int(cx) - r), min(w, int(cx) + r), max(0, int(cy) - r), min(h, int(cy) + r)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+        u = (xx - cx) * np.cos(a) + (yy - cy) * np.sin(a)
+        v = -(xx - cx) * np.sin(a) + (yy - cy) * np.cos(a)
+        half = W / 2 * np.sqrt(np.clip(1 - (2 * u / L) ** 2, 0, 1))
+        m = np.clip(half - np.abs(v), 0, 1)[..., None]
+        g = np.array([0.18, 0.42, 0.1]) * rng.uniform(0.5, 1.3) * lit
+        shade = 0.8 + 0.2 * (v / np.maximum(half, 1e-3))[..., None]
+        vein = np.exp(-(v / max(W * 0.05, 0.6)) ** 2)[..., None] * 0.25
+        col = g[None, None] * shade + vein
+        img[y0:y1, x0:x1] = img[y0:y1, x0:x1] * (1 - m) + m * col
+
+
+@background("canopy", "train")
+def canopy(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Daylight canopy: leaves over darker leaves and shadowed gaps."""
+    img = tint(0.3 + 0.4 * fbm(rng, h, w, seed_px * 6, 3), np.array([0.08, 0.16, 0.05]))
+    _leaves(rng, img, seed_px, int(np.clip(h * w / (seed_px * seed_px * 40), 5, 400)), 1.0)
+    return np.clip(img, 0, 1)
+
+
+@background("night", "train")
+def night(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A field at night under flash: black with a few dim leaves near the camera."""
+    img = np.full((h, w, 3), 0.01, np.float32)
+    _leaves(rng, img, seed_px, int(np.clip(h * w / (seed_px * seed_px * 300), 2, 60)), rng.uniform(0.2, 0.6))
+    return img
+
+
+@background("sky", "train")
+def sky(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Sky behind a panicle: a blue-to-pale gradient with clouds."""
+    yy = np.linspace(0, 1, h, dtype=np.float32)[:, None]
+    base = np.array([0.35, 0.55, 0.85]) * (1 - 0.4 * yy[..., None]) + 0.4 * yy[..., None]
+    cl = np.clip((fbm(rng, h, w, max(h, w) / 4, 5) - rng.uniform(0.4, 0.6)) * 3, 0, 1)[..., None]
+    return np.clip(base * (1 - cl) + cl * 0.92, 0, 1).astype(np.float32)
+
+
+@background("flatbed", "train")
+def flatbed(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A flatbed scanner's lid: near-black or near-white, uniform."""
+    v = rng.uniform(0.0, 0.06) if rng.random() < 0.7 else rng.uniform(0.85, 0.97)
+    return np.full((h, w, 3), v, np.float32) + 0.01 * noise(rng, h, w, 4)[..., None]
+
+
+@background("tray", "train")
+def tray(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A plastic tray or Petri dish: one colour, a gentle gradient."""
+    g = 0.85 + 0.15 * np.linspace(0, 1, w, dtype=np.float32)[None, :] * np.ones((h, 1), np.float32)
+    return tint(g, random_colour(rng, (0.0, 0.6), (0.3, 0.95)))
+
+
+@background("burlap", "heldout")
+def burlap(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Jute sacking: a coarse loose weave with dark gaps, tan (never trained on)."""
+    p = max(2.5, seed_px * rng.uniform(0.4, 0.9))
+    pat = 0.25 + 0.75 * _weave(rng, h, w, p, rng.uniform(0.4, 0.7), False)
+    return tint(pat, np.array([0.62, 0.5, 0.32]) * rng.uniform(0.8, 1.2))
+
+
+@background("concrete", "heldout")
+def concrete(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Concrete floor: grey with aggregate specks of a tenth to half a seed (never trained on)."""
+    img = tint(0.55 + 0.3 * fbm(rng, h, w, seed_px * 3, 5), np.full(3, rng.uniform(0.5, 0.8)))
+    n = int(h * w / (seed_px * seed_px) * 0.3)
+    _blobs(rng, img, n, (seed_px * 0.1, seed_px * 0.5), lambda: np.full(3, rng.uniform(0.2, 0.9)), shade=False)
+    return np.clip(img, 0, 1)
+
+
+@background("denim", "heldout")
+def denim(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Denim: a blue diagonal twill (never trained on)."""
+    p = max(2.0, seed_px * rng.uniform(0.12, 0.35))
+    pat = 0.5 + 0.5 * _weave(rng, h, w, p, 0.1, True)
+    return tint(pat * _folds(rng, h, w, 0.2), np.array([0.2, 0.3, 0.55]) * rng.uniform(0.7, 1.3))
+
+
+@background("gravel", "heldout")
+def gravel(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Fine gravel: packed grey and beige pebbles 1.5-4 seed diameters across (never trained on)."""
+    img = tint(0.4 + 0.2 * fbm(rng, h, w, seed_px, 3), np.array([0.45, 0.43, 0.4]))
+    n = int(h * w / (seed_px * seed_px * 4))
+    _blobs(rng, img, n, (seed_px * 1.5, seed_px * 4),
+           lambda: np.array([0.6, 0.58, 0.54]) * rng.uniform(0.5, 1.4) * rng.uniform(0.9, 1.1, 3))
+    return np.clip(img, 0, 1)

@@ -1,0 +1,99 @@
+"""Simulated grain photos: COCO labels that match the rendered seeds, seeded and split-aware."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from seedmap.detect.labels import CocoSource, segmentation_mask
+from seedmap.sim.photos import PhotoSimConfig, simulate_photos
+from seedmap.sim.photos.compose import LIGHTS, render_photo
+from seedmap.sim.photos.objects import VARIETIES
+from seedmap.sim.photos.textures import BACKGROUNDS
+from tests.helpers.cli import run_cli
+
+SMALL = {"long_side": (240, 320), "seed_px": (6.0, 12.0)}
+
+
+@pytest.fixture(scope="module")
+def photos(tmp_path_factory):
+    out = tmp_path_factory.mktemp("photos") / "p"
+    cfg = PhotoSimConfig(count=4, seed=3, **SMALL)
+    simulate_photos(cfg, out, progress=False)
+    return out, cfg
+
+
+def test_labels_are_the_visible_seeds(photos):
+    out, cfg = photos
+    coco = json.loads((out / "labels.json").read_text())
+    assert len(coco["images"]) == 4 and coco["categories"] == [{"id": 1, "name": "seed"}]
+    seqs = np.random.SeedSequence(cfg.seed).spawn(cfg.count)
+    n_seeds = 0
+    for i, im in enumerate(coco["images"]):
+        ph = render_photo(np.random.default_rng(seqs[i]), cfg.split, cfg.long_side, cfg.seed_px, cfg.empty_fraction)
+        anns = [a for a in coco["annotations"] if a["image_id"] == im["id"]]
+        assert len(anns) == len(ph.seeds)
+        h, w = ph.ids.shape
+        assert (im["width"], im["height"]) == (w, h)
+        sizes = []
+        for a, k in zip(anns, ph.seeds):
+            m = segmentation_mask(a["segmentation"], h, w).astype(bool)
+            assert np.array_equal(m, ph.ids == k)
+            ys, xs = np.nonzero(m)
+            x, y, bw, bh = a["bbox"]
+            assert (x, y, x + bw, y + bh) == (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+            assert a["area"] == m.sum()
+            sizes.append(np.sqrt(bw * bh))
+        n_seeds += len(anns)
+        if anns:
+            assert im["seed_px"] == pytest.approx(np.median(sizes), abs=1e-3)
+            # the drawn seed diameter is what the labels measure (within the spread of seed sizes and occlusion)
+            assert im["seed_px"] == pytest.approx(im["conditions"]["seed_diameter_px"], rel=0.3)
+    assert n_seeds > 20
+
+
+def test_readable_as_user_labels(photos):
+    out, _ = photos
+    src = CocoSource(out / "labels.json")
+    li = src[0]
+    assert li.image.ndim == 3 and li.labels.shape == li.image.shape[:2]
+
+
+def test_seeded_and_independent_of_count(photos, tmp_path):
+    out, cfg = photos
+    again = tmp_path / "again"
+    simulate_photos(cfg.model_copy(update={"count": 2}), again, progress=False)
+    for name in ("00000", "00001"):
+        a = sorted(out.glob(name + ".*"))[0]
+        assert a.read_bytes() == (again / a.name).read_bytes()
+
+
+def test_heldout_split_draws_only_unseen_surfaces():
+    held = {k for k, (s, _) in BACKGROUNDS.items() if s == "heldout"}
+    train = {k for k, (s, _) in BACKGROUNDS.items() if s == "train"}
+    assert held and train and not held & train
+    assert {k for k, v in VARIETIES.items() if v[0] == "heldout"}
+    assert {k for k, s in LIGHTS.items() if s == "heldout"}
+    seen = set()
+    for s in range(12):
+        ph = render_photo(np.random.default_rng(s), "heldout", (160, 200), (5.0, 8.0), 0.0)
+        seen.add(ph.conditions["background"])
+        assert ph.conditions["background"] not in train - {"canopy", "night", "sky"}
+    assert seen & held
+    for s in range(12):
+        ph = render_photo(np.random.default_rng(s), "train", (160, 200), (5.0, 8.0), 0.0)
+        assert ph.conditions["background"] in train
+        assert LIGHTS[ph.conditions["light"]] == "train"
+        assert all(VARIETIES[v][0] == "train" for v in ph.conditions["varieties"])
+
+
+def test_cli_refuses_existing_folder_and_bad_config(photos, tmp_path, monkeypatch, capsys):
+    out, _ = photos
+    assert run_cli(["simulate", "photos", "--out", out, "-n", "1", "-q"], monkeypatch) == 2
+    assert "exists" in capsys.readouterr().err
+    bad = tmp_path / "bad"
+    assert run_cli(["simulate", "photos", "--out", bad, "--split", "fog", "-q"], monkeypatch) == 2
+    assert run_cli(["simulate", "photos", "--out", bad, "--set", "seed_px=[2,4]", "-q"], monkeypatch) == 2
+    assert not bad.exists()
