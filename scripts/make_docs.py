@@ -364,10 +364,53 @@ def page_demo(cmds: dict[str, str]) -> tuple[str, str] | None:
         table(["stage", "ms"], trows)])
 
 
+def _photo_row(name: str, r: dict) -> list[str]:
+    return [name, num(r["precision"]), num(r["recall"]), f"**{num(r['f1'])}**", num(r.get("n_gt")),
+            num(r.get("fp_per_mpx_seedless")), num(r.get("ms_per_image"))]
+
+
+def page_photos(cmds: dict[str, str]) -> tuple[str, str] | None:
+    d = load("photos.json")
+    if d is None:
+        return None
+    head = ["set / network", "precision", "recall", "F1", "seeds", "false det. per MPx (seedless photos)",
+            "ms per image"]
+    rows = []
+    for tag, r in d["sets"].items():
+        for k, v in r.items():
+            if isinstance(v, dict):
+                rows.append(_photo_row(f"{tag}: {'shipped defaults' if k == 'default' else k}", v))
+    body = [source("photos.json", cmds),
+            "Simulated grain photos (`seedmap simulate photos`, docs/method/photos.md): `heldout` = backgrounds, "
+            "lights and varieties never used for training; `seen` = training conditions, photos never trained on. "
+            "`seedmap detect FOLDER` with its defaults (automatic seed scale, photo network); box IoU ≥ 0.5, "
+            "one-to-one, every labelled seed counts. The renderer is kinder than the field: these are not real "
+            "photos.\n", table(head, rows)]
+    ft = d.get("finetune")
+    if ft:
+        body += [f"\n### Fine-tune on {len(ft['train_images'])} held-out photos\n",
+                 f"`seedmap train fast-cnn` with its defaults on {len(ft['train_images'])} labelled photos of the "
+                 f"held-out set ({ft.get('steps')} steps, {num(ft['wall_s'])} s wall, {num(ft['cpu_s'])} s CPU), "
+                 f"then `seedmap detect --weights` on the other {ft['test_images']}:\n",
+                 table(head, [_photo_row("before (shipped)", ft["before"]), _photo_row("after fine-tune", ft["after"])])]
+    h = d["sets"].get("heldout", {}).get("default", {}).get("by_condition")
+    if h:
+        body += ["\n### Held-out set by condition (shipped defaults)\n",
+                 table(["condition", "precision", "recall", "F1", "seeds"],
+                       [[k, num(v["precision"]), num(v["recall"]), num(v["f1"]), num(v["n_gt"])]
+                        for k, v in h.items()])]
+    a = load("autoscale.json")
+    if a is not None and a.get("summary_rows"):
+        body += ["\n## Automatic seed scale\n", source("autoscale.json", cmds),
+                 table(a["summary_header"], a["summary_rows"])]
+    return "Seeds in photos", "\n".join(body)
+
+
 PAGES: dict[str, Callable[[dict[str, str]], tuple[str, str] | None]] = {
     "demo.md": page_demo,
     "paper.md": page_paper,
     "detect.md": page_detect,
+    "photos.md": page_photos,
     "slam.md": page_slam,
     "recon.md": page_recon,
     "sim.md": page_sim,
