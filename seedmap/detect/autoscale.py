@@ -1,18 +1,19 @@
 """The seeds' size in an image, estimated by a ``fast`` network itself (``cnn.scale = auto``).
 
-The network runs over a geometric ladder of input scales (factor ``LADDER_STEP`` apart, from 4x upscaling down to
-seeds of ~``MAX_SEED_PX`` px), each level on at most ``LEVEL_PX`` network pixels (``CROPS`` crops spread over the
-image, cut from the image before resizing, so an 18 MP photo costs the same as a small frame). Per level: the
-confident heatmap peaks (seed probability >= ``CONFIDENT``), their density per network pixel, mean score, and the
-median of their predicted box sizes (geometric mean of the box sides, network pixels).
+The network runs over a geometric ladder of input scales (``LADDER_STEP`` apart, from ``MAX_SCALE`` down to where
+seeds of ~``MAX_SEED_PX`` px would reach the target size below), small scales first. Each level runs on at most
+``LEVEL_PX`` network pixels: the whole image while it fits, else ``CROPS`` windows cut from the image (or one of its
+halvings) before resizing, placed where the smaller scales found the most confident peaks, so an 18 MP photo costs
+about what a small frame does. Per level: the confident heatmap peaks (seed probability >= ``CONFIDENT``), their
+density, mean score and the median of their predicted box sizes (geometric mean of the box sides, network px).
 
-A network fires densely and confidently on seeds near its operating size; on seeds much larger it fires little (or
-on their texture), on seeds much smaller it fires on clusters and background at a low, constant density. The level
-with the most evidence (density x mean score) picks the neighbourhood; there the predicted box size, which tracks the
-true size over ~1-2x the operating seed size and floors below it, is followed to the scale where the network sees
-seeds of ``TARGET`` x its operating size (log-interpolated between the two bracketing levels): the seed size is that
-size divided by the scale. A final correction removes the blur of upscaling (apparent size^2 = size^2 + ``BLUR_PX``^2
-for images whose seeds lie below the operating size). Method and measured accuracy: docs/method/detection.md.
+The predicted box size tracks the true size over ~1-2.5x the network's operating seed size, floors near it below
+(clusters, background texture) and the network stops firing on seeds much larger. So the box size falls with the
+scale, and where it passes ``TARGET`` x the operating size (log-interpolated between two levels with at least
+``MIN_PEAKS`` confident peaks; of several passes, the one with the most peaks) the network sees seeds of that size:
+the seed size is that size divided by the scale. A final correction removes the blur that makes small seeds look
+larger (size^2 = apparent size^2 - (``BLUR`` x operating size)^2). The ladder stops two levels past the target size.
+Method and measured accuracy: docs/method/detection.md.
 """
 
 from __future__ import annotations
@@ -40,8 +41,8 @@ CONFIDENT = 0.5
 MIN_PEAKS = 12
 #: the size is read where the network's predicted boxes are this multiple of its operating seed size
 TARGET = 1.8
-#: blur (px of the input image) removed from the apparent seed size: apparent^2 = size^2 + BLUR_PX^2
-BLUR_PX = 2.5
+#: blur removed from the apparent seed size, as a multiple of the operating seed size: size^2 = apparent^2 - blur^2
+BLUR = 0.45
 
 
 @dataclass
@@ -178,5 +179,6 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float) -> SeedSi
     if est is None:  # no pass: seeds too small even at the largest scale, or too large at the smallest
         lv = use[0] if use[0].box_px <= target else use[-1]
         est = lv.box_px / lv.scale
-    est = float(np.sqrt(max(est * est - BLUR_PX * BLUR_PX, 0.25 * est * est)))
+    b = BLUR * operating_px
+    est = float(np.sqrt(max(est * est - b * b, 0.25 * est * est)))
     return SeedSizeEstimate(float(est), levels)

@@ -59,7 +59,7 @@ def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
 
 #: with ``cnn.scale = auto`` the network runs at scale 1 while the estimated seed size lies within these multiples
 #: of its operating seed size (the band it detects well, docs/method/detection.md) ...
-SCALE_BAND = (0.7, 1.7)
+SCALE_BAND = (0.75, 1.3)
 #: ... and at scale operating size / estimate (at most 4) outside it
 
 
