@@ -12,8 +12,8 @@ The predicted box size tracks the true size over ~1-2.5x the network's operating
 scale, and where it passes ``TARGET`` x the operating size (log-interpolated between two levels with at least
 ``MIN_PEAKS`` confident peaks; of several passes, the one with the most peaks) the network sees seeds of that size:
 the seed size is that size divided by the scale. A final correction removes the blur that makes small seeds look
-larger (size^2 = apparent size^2 - (``BLUR`` x operating size)^2). The ladder stops two levels past the target size.
-Method and measured accuracy: docs/method/detection.md.
+larger (size^2 = apparent size^2 - (``BLUR`` x operating size)^2, at most ``BLUR_MAX`` of it). The ladder stops two
+levels past the target size. Method and measured accuracy: docs/method/detection.md.
 """
 
 from __future__ import annotations
@@ -41,8 +41,10 @@ CONFIDENT = 0.5
 MIN_PEAKS = 12
 #: the size is read where the network's predicted boxes are this multiple of its operating seed size
 TARGET = 1.8
-#: blur removed from the apparent seed size, as a multiple of the operating seed size: size^2 = apparent^2 - blur^2
+#: blur removed from the apparent seed size, as a multiple of the operating seed size: size^2 = apparent^2 - blur^2 ...
 BLUR = 0.45
+#: ... removing at most this fraction of the apparent size
+BLUR_MAX = 0.25
 
 
 @dataclass
@@ -180,5 +182,5 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float) -> SeedSi
         lv = use[0] if use[0].box_px <= target else use[-1]
         est = lv.box_px / lv.scale
     b = BLUR * operating_px
-    est = float(np.sqrt(max(est * est - b * b, 0.25 * est * est)))
+    est = float(np.sqrt(max(est * est - b * b, (1.0 - BLUR_MAX) ** 2 * est * est)))
     return SeedSizeEstimate(float(est), levels)
