@@ -6,6 +6,9 @@ seediness image (:func:`seediness`: bright, non-green) at half resolution with a
 response. Peaks: 3x3 max-filter non-maximum suppression of the heat logit. Box = peak pixel +- the rounded edge
 distances (x0, y0 inclusive, x1, y1 exclusive); keypoint = peak pixel + offset; ellipse = axis-aligned, inscribed
 in the box. With the shipped field network the peaks go through the refiner (:mod:`seedmap.detect.cnn_refine`).
+The input is resized so that the seeds have the network's size: by ``cnn.scale`` / ``cnn.seed_px``, by the network's
+recorded ``images_seed_px``, or (``cnn.scale = auto``) from the seed size :mod:`seedmap.detect.autoscale` estimates on
+the first image (:meth:`CnnDetector.reset_scale` asks for a new estimate).
 Method and measurements: docs/method/detection.md; training: :mod:`seedmap.detect.train_cnn`.
 """
 
