@@ -17,7 +17,7 @@ import pytest
 
 from seedmap.detect import cnn as cnn_mod
 from seedmap.detect import make_detector
-from seedmap.detect.autoscale import estimate_seed_px
+from seedmap.detect.autoscale import Level, estimate_seed_px, size_from_levels
 from seedmap.detect.config import min_visible_seed_px
 from seedmap.errors import ConfigError
 from seedmap.eval.detect_metrics import frame_metrics
@@ -163,3 +163,31 @@ def test_bad_scale_values_are_one_line_config_errors(value, tmp_path, monkeypatc
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and err[0].startswith("error:") and "cnn.scale" in err[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_arm_network_estimates_an_arm_scan(arm_scan_6_views):
+    """The arm network on a scan whose seeds are smaller than its own (~4.5 px for 7): the size is found and the
+    scan is upscaled to it."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = SeedmapDataset(arm_scan_6_views)
+    gt = ds.gt_instances(0, "left")
+    b = gt.boxes[gt.area >= min_visible_seed_px(ds.calib.width)]
+    true = float(np.median(np.sqrt((b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]))))
+    det = make_detector("fast", overrides=["cnn.domain=arm"])
+    scale = det.ensure_scale(ds[0].left)
+    assert det.seed_px_estimate == pytest.approx(true, rel=0.15)
+    assert scale == pytest.approx(7.0 / det.seed_px_estimate) and scale > 1.2
+
+
+def test_size_is_read_where_the_boxes_come_closest_when_they_never_reach_the_target():
+    """Levels the arm network gave on a 1024x750 arm-scan view (true seed size 8.4 px): its boxes stop at 12.5 px,
+    short of the 12.6-px target, so no level pair passes it; the closest level (12.5 px at scale 1.41) reads
+    8.8 px, 8.3 px without the blur. With a pass the size is interpolated between the two levels."""
+    lv = [Level(2.0, 36, 1.0, 0.6, 10.86), Level(2 ** 0.5, 701, 1.0, 0.7, 12.50), Level(1.0, 708, 1.0, 0.7, 9.37),
+          Level(2 ** -0.5, 767, 1.0, 0.7, 7.13), Level(0.5, 893, 1.0, 0.6, 5.59), Level(0.25, 8, 1.0, 0.6, 7.0)]
+    assert size_from_levels(lv, 7.0) == pytest.approx(8.26, abs=0.01)
+    passing = [Level(2.0, 700, 1.0, 0.7, 10.0), Level(2 ** 0.5, 900, 1.0, 0.7, 8.0)]
+    s = np.exp(np.log(2.0) + np.log(10 / 9) / np.log(10 / 8) * np.log(2 ** -0.5))  # boxes of 9 px at scale s
+    assert size_from_levels(passing, 5.0) == pytest.approx(np.sqrt((9 / s) ** 2 - 2.25 ** 2))
+    assert size_from_levels([Level(1.0, 5, 1.0, 0.7, 9.0)], 5.0) is None  # too few peaks anywhere

@@ -10,10 +10,10 @@ density, mean score and the median of their predicted box sizes (geometric mean 
 The predicted box size tracks the true size over ~1-2.5x the network's operating seed size, floors near it below
 (clusters, background texture) and the network stops firing on seeds much larger. So the box size falls with the
 scale, and where it passes ``TARGET`` x the operating size (log-interpolated between two levels with at least
-``MIN_PEAKS`` confident peaks; of several passes, the one with the most peaks) the network sees seeds of that size:
-the seed size is that size divided by the scale. A final correction removes the blur that makes small seeds look
-larger (size^2 = apparent size^2 - (``BLUR`` x operating size)^2, at most ``BLUR_MAX`` of it). The ladder stops two
-levels past the target size. Method and measured accuracy: docs/method/detection.md.
+``MIN_PEAKS`` confident peaks; of several passes, the one with the most peaks; without one, the level whose boxes
+come closest) the network sees seeds of that size: the seed size is that size divided by the scale. A final
+correction removes the blur that makes small seeds look larger (size^2 = apparent size^2 - (``BLUR`` x operating
+size)^2, at most ``BLUR_MAX`` of it). The ladder stops two levels past the target size. Method and measured accuracy: docs/method/detection.md.
 """
 
 from __future__ import annotations
@@ -162,25 +162,32 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float) -> SeedSi
         lv, xy = measure_level(peaks_fn, pyramid, float(s), points)
         levels.insert(0, lv)
         points = np.concatenate([points, xy])
-        # past the target size: two levels with larger boxes (or none) end the ladder
-        seen = any(v.peaks >= MIN_PEAKS and v.box_px <= target for v in levels[1:])
-        above = above + 1 if seen and not (lv.peaks >= MIN_PEAKS and lv.box_px <= target) else 0
+        # past the target size (boxes larger than it seen): two levels with larger boxes or too few peaks end it
+        crossed = any(v.peaks >= MIN_PEAKS and v.box_px > target for v in levels)
+        above = above + 1 if crossed and not (lv.peaks >= MIN_PEAKS and lv.box_px <= target) else 0
         if above >= 2:
             break
+    return SeedSizeEstimate(size_from_levels(levels, operating_px), levels)
+
+
+def size_from_levels(levels: list[Level], operating_px: float) -> float | None:
+    """The seed size (px) read off ladder ``levels`` (largest scale first) of a network operating at
+    ``operating_px`` (module docstring); None when no level has MIN_PEAKS confident peaks."""
+    target = TARGET * operating_px
     use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
     if not use:
-        return SeedSizeEstimate(None, levels)
+        return None
     # the predicted box size falls with the scale: where it passes the target (log-interpolated between the two
-    # levels), the network sees seeds of the target size; of several passes, the one with the most evidence
+    # levels), the network sees seeds of the target size; of several passes, the one with the most peaks
     best, est = -1, None
     for la, lb in zip(use, use[1:]):
         if la.box_px > target >= lb.box_px and la.peaks + lb.peaks > best:
             t = np.log(la.box_px / target) / np.log(la.box_px / lb.box_px)
             est = target / float(np.exp(np.log(la.scale) + t * np.log(lb.scale / la.scale)))
             best = la.peaks + lb.peaks
-    if est is None:  # no pass: seeds too small even at the largest scale, or too large at the smallest
-        lv = use[0] if use[0].box_px <= target else use[-1]
+    if est is None:  # no pass (seeds too small at the largest scale, too large at the smallest, or boxes that
+        # never quite reach the target): the level whose box size comes closest to it
+        lv = min(use, key=lambda v: abs(np.log(v.box_px / target)))
         est = lv.box_px / lv.scale
     b = BLUR * operating_px
-    est = float(np.sqrt(max(est * est - b * b, (1.0 - BLUR_MAX) ** 2 * est * est)))
-    return SeedSizeEstimate(float(est), levels)
+    return float(np.sqrt(max(est * est - b * b, (1.0 - BLUR_MAX) ** 2 * est * est)))
