@@ -6,6 +6,9 @@ seediness image (:func:`seediness`: bright, non-green) at half resolution with a
 response. Peaks: 3x3 max-filter non-maximum suppression of the heat logit. Box = peak pixel +- the rounded edge
 distances (x0, y0 inclusive, x1, y1 exclusive); keypoint = peak pixel + offset; ellipse = axis-aligned, inscribed
 in the box. With the shipped field network the peaks go through the refiner (:mod:`seedmap.detect.cnn_refine`).
+The input is resized so that the seeds have the network's size: by ``cnn.scale`` / ``cnn.seed_px``, by the network's
+recorded ``images_seed_px``, or (``cnn.scale = auto``) from the seed size :mod:`seedmap.detect.autoscale` estimates on
+the first image (:meth:`CnnDetector.reset_scale` asks for a new estimate).
 Method and measurements: docs/method/detection.md; training: :mod:`seedmap.detect.train_cnn`.
 """
 
@@ -19,6 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from seedmap.detect.autoscale import estimate_seed_px
 from seedmap.detect.base import Detector, check_image, logit, map_to_input, register_detector
 from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path
 from seedmap.detect.config import TRAINED_SEED_PX, CnnConfig
@@ -56,18 +60,43 @@ def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
     return shipped_or_path(weights or cfg.weights or default_cnn_path(cfg.domain))
 
 
-def cnn_scale(cfg: CnnConfig, trained_seed_px: float) -> float:
-    """The factor the network's input is resized by: ``trained_seed_px / cfg.seed_px`` when the seed size is set,
-    else ``cfg.scale``."""
-    if cfg.seed_px is None:
-        return float(cfg.scale)
-    if cfg.scale != 1.0:
-        raise ConfigError(f"set cnn.scale ({cfg.scale:g}) or cnn.seed_px ({cfg.seed_px:g}), not both")
-    s = float(trained_seed_px) / float(cfg.seed_px)
+#: with ``cnn.scale = auto`` the network runs at scale 1 while the estimated seed size lies within these multiples
+#: of its operating seed size (the band it detects well, docs/method/detection.md) ...
+SCALE_BAND = (0.75, 1.3)
+#: ... and at scale operating size / estimate (at most 4) outside it
+
+
+def fixed_scale(cfg: CnnConfig, operating_px: float, images_seed_px: float | None = None
+                ) -> tuple[float | None, str]:
+    """The input scale set by the config (or the network) and how it was set: ``cnn.seed_px`` (``seed_px``:
+    ``operating_px / cnn.seed_px``), a number ``cnn.scale`` (``scale``), or, with ``cnn.scale = auto``, a network
+    fine-tuned on images of a recorded seed size (``network``: ``operating_px / images_seed_px``); ``(None, "auto")``
+    when the scale is to be estimated from the images."""
+    if cfg.seed_px is not None:
+        if cfg.scale != "auto" and float(cfg.scale) != 1.0:
+            raise ConfigError(f"set cnn.scale ({cfg.scale:g}) or cnn.seed_px ({cfg.seed_px:g}), not both")
+        return _bounded(float(operating_px) / float(cfg.seed_px), "cnn.seed_px", cfg.seed_px, operating_px), "seed_px"
+    if cfg.scale != "auto":
+        return float(cfg.scale), "scale"
+    if images_seed_px:
+        return _bounded(float(operating_px) / float(images_seed_px), "the network's images_seed_px", images_seed_px,
+                        operating_px), "network"
+    return None, "auto"
+
+
+def _bounded(s: float, what: str, px: float, operating_px: float) -> float:
     if s > 4.0:
-        raise ConfigError(f"cnn.seed_px={cfg.seed_px:g}: seeds under {trained_seed_px / 4.0:g} px are too small "
-                          f"for the network (trained on {trained_seed_px:g}-px seeds; at most 4x upscaling)")
+        raise ConfigError(f"{what}={px:g}: seeds under {operating_px / 4.0:g} px are too small for the network "
+                          f"(trained on {operating_px:g}-px seeds; at most 4x upscaling)")
     return s
+
+
+def auto_scale(seed_px: float | None, operating_px: float) -> float:
+    """The input scale for images of estimated seed size ``seed_px``: 1 inside SCALE_BAND (or without an estimate),
+    else ``operating_px / seed_px`` (at most 4)."""
+    if seed_px is None or SCALE_BAND[0] * operating_px <= seed_px <= SCALE_BAND[1] * operating_px:
+        return 1.0
+    return min(float(operating_px) / float(seed_px), 4.0)
 
 
 def load_refiner(cfg: CnnConfig, cnn_path: Path, explicit_weights: bool = False) -> CnnRefiner | None:
@@ -179,21 +208,39 @@ class CnnDetector(Detector):
         self.peak_threshold = float(self.cfg.refine_candidates if self.refiner else self.cfg.threshold)
         meta = self.sess.get_modelmeta().custom_metadata_map
         self.info = json.loads(meta.get("info", "{}"))
-        #: the seed diameter (px) the network was trained on: recorded by `seedmap train fast-cnn`, else the
-        #: shipped networks' (TRAINED_SEED_PX of cnn.domain)
+        #: the seed diameter (px) the network operates at: recorded by `seedmap train fast-cnn`, else the shipped
+        #: networks' (TRAINED_SEED_PX of cnn.domain)
         self.trained_seed_px = float(self.info.get("seed_px") or TRAINED_SEED_PX[self.cfg.domain])
-        #: the network runs on the image resized by this factor (cnn.scale, or set by cnn.seed_px)
-        self.scale = cnn_scale(self.cfg, self.trained_seed_px)
+        #: the network runs on the image resized by this factor: set by the config or the network (``scale_source``
+        #: seed_px | scale | network), else (``auto``) from the seed size estimated on the next image it sees
+        self.scale, self.scale_source = fixed_scale(self.cfg, self.trained_seed_px, self.info.get("images_seed_px"))
+        #: the seed size (px) estimated from an image (``auto`` only; None before one, or without seeds found)
+        self.seed_px_estimate: float | None = None
         self._pool = None
 
+    def reset_scale(self) -> None:
+        """With ``cnn.scale = auto``: estimate the seed size again on the next image (a new photo); else nothing."""
+        if self.scale_source == "auto":
+            self.scale, self.seed_px_estimate = None, None
+
+    def ensure_scale(self, image: np.ndarray) -> float:
+        """The input scale, estimated from RGB ``image`` first when it is not known yet (``auto``)."""
+        if self.scale is None:
+            self.seed_px_estimate = estimate_seed_px(self.peaks, check_image(image), self.trained_seed_px).seed_px
+            self.scale = auto_scale(self.seed_px_estimate, self.trained_seed_px)
+        return self.scale
+
     def settings(self) -> dict:
-        """The input scale and the seed size (px of the input images) it assumes, for a result's meta.json."""
-        return {"cnn_scale": self.scale, "seed_px": self.trained_seed_px / self.scale,
-                "trained_seed_px": self.trained_seed_px}
+        """The input scale, the seed size (px of the input images) it assumes, how it was set (``scale_source``:
+        auto | scale | seed_px | network) and the estimated seed size (auto), for a result's meta.json."""
+        s = self.scale if self.scale is not None else 1.0
+        return {"cnn_scale": s, "seed_px": self.trained_seed_px / s, "trained_seed_px": self.trained_seed_px,
+                "scale_source": self.scale_source, "seed_px_estimate": self.seed_px_estimate}
 
     def detect_stereo(self, frame: StereoFrame) -> StereoDetections:
         """Left and right image; with ``cnn.stereo_threads = 2`` the two run concurrently (onnxruntime
         and OpenCV release the GIL)."""
+        self.ensure_scale(frame.left)  # once per sequence: from its first left image
         if int(self.cfg.stereo_threads) < 2:
             return super().detect_stereo(frame)
         if self._pool is None:
@@ -208,11 +255,11 @@ class CnnDetector(Detector):
     def detect(self, image: np.ndarray) -> Detections:
         """Seeds in one RGB image: boxes, sigmoid scores, keypoints (ellipse centres); refined with a refiner.
 
-        With a scale != 1 (``cnn.scale``, or ``cnn.seed_px``) the network runs on the image resized by that factor
-        (seeds brought to the training size) and the boxes, keypoints and ellipse axes are mapped back to the
-        input's pixels."""
+        With a scale != 1 (``cnn.scale``, ``cnn.seed_px``, the network's images_seed_px, or estimated on the first
+        image with ``cnn.scale = auto``) the network runs on the image resized by that factor (seeds brought to the
+        training size) and the boxes, keypoints and ellipse axes are mapped back to the input's pixels."""
         img = check_image(image)
-        s = self.scale
+        s = self.ensure_scale(img)
         if s == 1.0:
             return self._detect(img)
         h, w = img.shape[:2]

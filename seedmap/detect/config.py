@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from typing import Literal, Sequence, Union
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from seedmap.io.options import DatasetOptions
 from seedmap.config import ConfigModel, apply_overrides
@@ -55,9 +55,9 @@ class CnnConfig(ConfigModel):
     threshold: float = CNN_THRESHOLD
     #: tile side (px, even) the gated network runs on; 0 = the whole image in one pass
     tile: int = 48
-    #: run the network on the image resized by this factor (seeds larger than the ~5 px training seeds brought to
-    #: the training size); outputs are mapped back to input pixels
-    scale: float = Field(1.0, gt=0, le=4)
+    #: ``auto`` = estimate the seeds' size on the first image of a sequence (each photo of a folder) and resize when
+    #: it lies outside the network's band; a number = run the network on the image resized by it (0-4]
+    scale: Union[Literal["auto"], float] = "auto"
     #: the seeds' typical diameter (px, geometric mean of a seed's box sides) in your images: sets the scale to the
     #: network's training seed size / seed_px (TRAINED_SEED_PX, or the size a ``seedmap train fast-cnn`` network
     #: records); None = use ``scale``
@@ -73,6 +73,22 @@ class CnnConfig(ConfigModel):
     threads: int = 1
     #: stereo frames: left and right run concurrently on this many threads (1 or 2)
     stereo_threads: int = 2
+
+    @field_validator("scale", mode="before")
+    @classmethod
+    def _scale(cls, v: object) -> object:
+        """``auto`` or a number in (0, 4]."""
+        if isinstance(v, str) and v.strip().lower() == "auto":
+            return "auto"
+        try:
+            if isinstance(v, bool):
+                raise TypeError
+            f = float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            raise ValueError(f"must be auto or a number in (0, 4], got {v!r}") from None
+        if not 0.0 < f <= 4.0:
+            raise ValueError(f"must be auto or a number in (0, 4], got {v!r}")
+        return f
 
 
 class LearnedConfig(ConfigModel):

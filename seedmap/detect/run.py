@@ -42,8 +42,9 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
 
     ``out`` gets ``detections.jsonl`` + ``detections_coco.json`` (see :mod:`seedmap.detect.io`),
     ``config.yaml`` (the resolved detector config), ``meta.json`` (detector name, oracle flag, timing, the
-    ``fast`` detector's input scale and seed size) and, with ``overlay``, ``overlay/{left,right}/NNNNNN.png``
-    (images: ``overlay/NAME.png``) with the ellipses drawn. Images keep their names relative to ``dataset``.
+    ``fast`` detector's input scale, seed size and how it was set: a stereo sequence's from its first frame, a photo
+    folder's from its last photo; each photo's own is in its ``detections_coco.json`` image entry) and, with
+    ``overlay``, ``overlay/{left,right}/NNNNNN.png`` (images: ``overlay/NAME.png``) with the ellipses drawn. Images keep their names relative to ``dataset``.
     ``inputs``: more files the command read (``--config``, ``--weights``): ``out`` is never one of them.
     """
     from seedmap.config import dump_config
@@ -105,12 +106,19 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
     stems = [str(Path(n).with_suffix(".png")) for n in photos.names]
     over = stems if len(set(stems)) == len(stems) else [n if n.endswith(".png") else n + ".png" for n in photos.names]
     records, t_det = [], 0.0
+    reset = getattr(det, "reset_scale", None)  # the fast detector: a fresh seed-size estimate per photo
     for i in track(idx, f"detect ({det.name})", "image", enabled=progress):
         img = photos.image(i)
         t0 = time.perf_counter()
+        if reset is not None:
+            reset()
         d = det.detect(img)
         t_det += time.perf_counter() - t0
         records.append(detection_record(i, "mono", d, 0.0, photos.names[i], img.shape[1], img.shape[0]))
+        if reset is not None:
+            s = det.settings()
+            px = s["seed_px_estimate"] if s["scale_source"] == "auto" else s["seed_px"]
+            records[-1].update(seed_px=None if px is None else round(float(px), 3), cnn_scale=round(s["cnn_scale"], 6))
         if overlay_dir is not None:
             write_png(overlay_dir / "overlay" / over[i], draw_ellipses(img, d.ellipses))
     return records, t_det

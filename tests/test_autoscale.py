@@ -1,0 +1,193 @@
+"""``cnn.scale = auto``: the ``fast`` detector estimates the seeds' size from the images and resizes them to its own.
+
+Truth: the median geometric mean of the GT box sides of the detectable seeds of a simulated frame, times the factor
+the frame is rescaled by. The frames are a 420x315 window at the default camera's pixel scale, so a detectable seed is
+one of the default 1434-px camera (min_visible_seed_px(1434)).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from seedmap.detect import cnn as cnn_mod
+from seedmap.detect import make_detector
+from seedmap.detect.autoscale import Level, estimate_seed_px, size_from_levels
+from seedmap.detect.config import min_visible_seed_px
+from seedmap.errors import ConfigError
+from seedmap.eval.detect_metrics import frame_metrics
+
+from helpers.cli import run_cli
+
+
+#: the frame the estimates are tested on (the one with the most seeds of the last three)
+FRAME = 5
+
+
+def _true_seed_px(ds, i: int) -> float:
+    gt = ds.gt_instances(i, "left")
+    b = gt.boxes[gt.area >= min_visible_seed_px(1434)]
+    return float(np.median(np.sqrt((b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]))))
+
+
+def _resize(img: np.ndarray, f: float) -> np.ndarray:
+    return cv2.resize(img, None, fx=f, fy=f, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
+
+
+@pytest.fixture(scope="module")
+def frame(cnn_range):
+    return np.ascontiguousarray(cnn_range[FRAME].left), _true_seed_px(cnn_range, FRAME)
+
+
+def _f1(det, gt, f: float) -> float:  # noqa: ANN001 - Detections, Instances
+    """Box F1 (IoU 0.5) of ``det`` against the GT of a frame rescaled by ``f``."""
+    b = gt.boxes.astype(np.float64) * f
+    g = SimpleNamespace(boxes=b, area=gt.area * f * f, center_visible=gt.center_visible, center_uv=gt.center_uv * f)
+    return frame_metrics(det, g, min_gt_area=min_visible_seed_px(1434) * f * f)[0].f1
+
+
+@pytest.fixture()
+def count_estimates(monkeypatch):
+    """The number of seed-size estimates the detector runs."""
+    calls = []
+
+    def counted(*a, **k):
+        calls.append(1)
+        return estimate_seed_px(*a, **k)
+
+    monkeypatch.setattr(cnn_mod, "estimate_seed_px", counted)
+    return calls
+
+
+@pytest.mark.parametrize("factor", [0.5, 1.0, 3.0])
+def test_estimate_is_within_15_percent_of_the_true_seed_size(frame, factor):
+    img, true = frame
+    det = make_detector("fast")
+    est = estimate_seed_px(det.peaks, _resize(img, factor), det.trained_seed_px).seed_px
+    assert est == pytest.approx(true * factor, rel=0.15)
+
+
+def test_auto_keeps_scale_1_in_band_and_resizes_large_seeds(frame, cnn_range, count_estimates):
+    img, true = frame
+    gt = cnn_range.gt_instances(FRAME, "left")
+    det = make_detector("fast")
+    assert det.scale is None and det.scale_source == "auto"
+    d1 = det.detect(img)
+    assert det.scale == 1.0 and det.seed_px_estimate == pytest.approx(true, rel=0.15)
+    assert len(d1) == len(make_detector("fast", overrides=["cnn.scale=1"]).detect(img))  # same as forced scale 1
+    big = _resize(img, 3.0)
+    det.detect(big)  # a sequence keeps the scale of its first image
+    assert det.scale == 1.0 and len(count_estimates) == 1
+    det.reset_scale()  # a new photo: estimated again
+    d3 = det.detect(big)
+    assert len(count_estimates) == 2 and det.scale == pytest.approx(1 / 3, rel=0.15)
+    plain = make_detector("fast", overrides=["cnn.scale=1"]).detect(big)
+    assert _f1(d3, gt, 3.0) > _f1(d1, gt, 1.0) - 0.1 > _f1(plain, gt, 3.0) + 0.3
+
+
+def test_forced_scale_or_seed_px_skip_the_estimate(frame, count_estimates):
+    img, _ = frame
+    for ov, scale, src in (["cnn.scale=0.5"], 0.5, "scale"), (["cnn.seed_px=10"], 0.5, "seed_px"):
+        det = make_detector("fast", overrides=ov)
+        det.detect(img)
+        det.reset_scale()
+        det.detect(img)
+        s = det.settings()
+        assert det.scale == scale and s["scale_source"] == src and s["seed_px_estimate"] is None
+    assert count_estimates == []
+
+
+def test_a_network_with_images_seed_px_runs_at_its_fixed_scale(frame, tmp_path, count_estimates):
+    import onnx
+
+    m = onnx.load(str(cnn_mod.default_cnn_path("field")))
+    props = {p.key: p for p in m.metadata_props}
+    info = json.loads(props["info"].value) if "info" in props else {}
+    info.update(seed_px=6.0, images_seed_px=24.0)
+    if "info" in props:
+        props["info"].value = json.dumps(info)
+    else:
+        m.metadata_props.add(key="info", value=json.dumps(info))
+    p = tmp_path / "tuned.onnx"
+    onnx.save(m, str(p))
+    det = make_detector("fast", weights=p)
+    assert det.scale == pytest.approx(0.25) and det.scale_source == "network"
+    det.detect(frame[0])
+    assert count_estimates == []
+    assert make_detector("fast", weights=p, overrides=["cnn.scale=1"]).scale == 1.0  # forcing wins
+    shutil.copy(cnn_mod.default_cnn_path("field"), tmp_path / "plain.onnx")
+    assert make_detector("fast", weights=tmp_path / "plain.onnx").scale_source == "auto"
+
+
+def test_scale_is_recorded_for_a_dataset_and_per_photo(cnn_range, frame, tmp_path, monkeypatch, capsys):
+    from seedmap.detect.run import run_detect
+
+    out = run_detect(cnn_range.root, tmp_path / "seq", "fast", frames=slice(FRAME - 1, FRAME + 1), progress=False)
+    meta = json.loads((out / "meta.json").read_text())  # estimated on the first frame run
+    assert meta["scale_source"] == "auto" and meta["cnn_scale"] == 1.0
+    assert meta["seed_px_estimate"] == pytest.approx(_true_seed_px(cnn_range, FRAME - 1), rel=0.15)
+    img, true = frame
+    d = tmp_path / "photos"
+    d.mkdir()
+    cv2.imwrite(str(d / "a.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(d / "b.png"), cv2.cvtColor(_resize(img, 3.0)[:900, :1200], cv2.COLOR_RGB2BGR))
+    capsys.readouterr()
+    assert run_cli(["detect", d, "--detector", "fast", "--out", tmp_path / "ph"], monkeypatch) == 0
+    assert "seed size (estimated, per image)" in capsys.readouterr().out
+    ims = json.loads((tmp_path / "ph" / "detections_coco.json").read_text())["images"]
+    assert [im["file_name"] for im in ims] == ["a.png", "b.png"]
+    assert ims[0]["seed_px"] == pytest.approx(true, rel=0.15) and ims[0]["cnn_scale"] == 1.0
+    assert ims[1]["seed_px"] == pytest.approx(3 * true, rel=0.15)
+    assert ims[1]["cnn_scale"] == pytest.approx(5.0 / ims[1]["seed_px"], rel=1e-3)
+    meta = json.loads((tmp_path / "ph" / "meta.json").read_text())
+    assert meta["scale_source"] == "auto" and meta["detections"] > 0
+
+
+@pytest.mark.parametrize("value,scale", [("auto", None), ("AUTO", None), ("0.5", 0.5), ("4", 4.0)])
+def test_scale_config_accepts_auto_and_numbers(value, scale):
+    assert make_detector("fast", overrides=[f"cnn.scale={value}"]).scale == scale
+
+
+@pytest.mark.parametrize("value", ["big", "0", "-1", "5", "true"])
+def test_bad_scale_values_are_one_line_config_errors(value, tmp_path, monkeypatch, capsys, frame):
+    with pytest.raises(ConfigError, match="auto or a number"):
+        make_detector("fast", overrides=[f"cnn.scale={value}"])
+    p = tmp_path / "a.png"
+    cv2.imwrite(str(p), np.zeros((64, 64, 3), np.uint8))
+    assert run_cli(["detect", p, "--out", tmp_path / "o", "--set", f"cnn.scale={value}"], monkeypatch) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith("error:") and "cnn.scale" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_arm_network_estimates_an_arm_scan(arm_scan_6_views):
+    """The arm network on a scan whose seeds are smaller than its own (~4.5 px for 7): the size is found and the
+    scan is upscaled to it."""
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    ds = SeedmapDataset(arm_scan_6_views)
+    gt = ds.gt_instances(0, "left")
+    b = gt.boxes[gt.area >= min_visible_seed_px(ds.calib.width)]
+    true = float(np.median(np.sqrt((b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]))))
+    det = make_detector("fast", overrides=["cnn.domain=arm"])
+    scale = det.ensure_scale(ds[0].left)
+    assert det.seed_px_estimate == pytest.approx(true, rel=0.15)
+    assert scale == pytest.approx(7.0 / det.seed_px_estimate) and scale > 1.2
+
+
+def test_size_is_read_where_the_boxes_come_closest_when_they_never_reach_the_target():
+    """Levels the arm network gave on a 1024x750 arm-scan view (true seed size 8.4 px): its boxes stop at 12.5 px,
+    short of the 12.6-px target, so no level pair passes it; the closest level (12.5 px at scale 1.41) reads
+    8.8 px, 8.3 px without the blur. With a pass the size is interpolated between the two levels."""
+    lv = [Level(2.0, 36, 1.0, 0.6, 10.86), Level(2 ** 0.5, 701, 1.0, 0.7, 12.50), Level(1.0, 708, 1.0, 0.7, 9.37),
+          Level(2 ** -0.5, 767, 1.0, 0.7, 7.13), Level(0.5, 893, 1.0, 0.6, 5.59), Level(0.25, 8, 1.0, 0.6, 7.0)]
+    assert size_from_levels(lv, 7.0) == pytest.approx(8.26, abs=0.01)
+    passing = [Level(2.0, 700, 1.0, 0.7, 10.0), Level(2 ** 0.5, 900, 1.0, 0.7, 8.0)]
+    s = np.exp(np.log(2.0) + np.log(10 / 9) / np.log(10 / 8) * np.log(2 ** -0.5))  # boxes of 9 px at scale s
+    assert size_from_levels(passing, 5.0) == pytest.approx(np.sqrt((9 / s) ** 2 - 2.25 ** 2))
+    assert size_from_levels([Level(1.0, 5, 1.0, 0.7, 9.0)], 5.0) is None  # too few peaks anywhere
