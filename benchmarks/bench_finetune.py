@@ -124,7 +124,7 @@ def main() -> None:
     ap.add_argument("--n-test", type=int, default=6)
     ap.add_argument("--upscale", type=float, default=4.0)
     ap.add_argument("--work", type=Path, default=Path("bench_finetune_work"), help="folder for labels, runs")
-    ap.add_argument("--threads", type=int, default=2, help="CPU threads (training and detection)")
+    ap.add_argument("--threads", type=int, default=1, help="CPU threads (training and detection)")
     ap.add_argument("--auto-scale", action="store_true",
                     help="detect with the fine-tuned network's stored scale (no --set cnn.seed_px)")
     ap.add_argument("--train-args", default="", help="extra `seedmap train fast-cnn` options (quoted)")

@@ -19,8 +19,8 @@ DEFAULT_INIT = "fast_cnn.onnx"
 DEFAULT_STEPS = 1500
 #: ``train fast-cnn --lr`` default
 DEFAULT_LR = 2e-3
-#: ``train fast-cnn --threads`` default (torch CPU threads)
-DEFAULT_THREADS = 2
+#: ``train fast-cnn --threads`` default (torch CPU threads: two threads on a busy 2-core machine ran 16x slower)
+DEFAULT_THREADS = 1
 
 
 def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],

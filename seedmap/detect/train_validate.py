@@ -34,7 +34,7 @@ def split_coco(labelled: list[int], unlabelled: list[int], fraction: float, seed
     Fewer than 2 labelled images: one-line :class:`InputError` naming ``path``."""
     if len(labelled) < 2:
         raise InputError(f"has {len(labelled)} labelled image{'s' if len(labelled) != 1 else ''}; training needs at "
-                         "least 2 (one is held out to measure the network; or pass --val LABELS.json)", path)
+                         "least 2 (one for the held-out check of the network; or pass --val LABELS.json)", path)
     n_val = min(max(1, int(round(fraction * len(labelled)))), len(labelled) - 1)
     order = np.random.default_rng(seed).permutation(len(labelled))
     val = sorted(labelled[k] for k in order[:n_val])
