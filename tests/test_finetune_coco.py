@@ -95,6 +95,11 @@ def test_boxes_only_fine_tune_learns_at_the_network_seed_size_and_reports_heldou
 
     info = json.loads({p.key: p.value for p in onnx.load(str(out / "fast_cnn.onnx")).metadata_props}["info"])
     assert info["seed_px"] == 5.0 and info["images_seed_px"] == pytest.approx(want)
+    # a refiner for the resized network is not trained from the labels at their own size: one line, nothing written
+    ref = tmp_path / "ref"
+    assert run_cli(["train", "cnn-refiner", labels, "--images-root", tmp_path / "set" / "images", "--weights",
+                    out / "fast_cnn.onnx", "--out", ref, "--steps", "1"], monkeypatch) == 2
+    assert not ref.exists()
 
 
 def test_polygon_and_rle_labels_train_from_scratch_and_without_a_held_out_f1_before(tiny_range, tmp_path,
