@@ -10,7 +10,8 @@ images of the first range train, ``--n-test`` of the other are held out.
 Steps, each through the real CLI in a subprocess (as a user runs it):
 
 1. ``seedmap detect TEST_IMAGES`` with the shipped network at the true seed size (``--set cnn.seed_px=S``, S = the
-   test labels' median box side) and ``seedmap eval detect TEST.json DET``: F1 before;
+   test labels' median box side), with its refiner and without, and ``seedmap eval detect TEST.json DET``: F1
+   before;
 2. ``seedmap train fast-cnn TRAIN.json --images-root ... --out MODEL`` with default settings (wall and CPU time of
    the process);
 3. ``seedmap detect TEST_IMAGES --weights MODEL/fast_cnn.onnx`` (+ ``--set cnn.seed_px=S`` unless ``--auto-scale``,
@@ -128,6 +129,8 @@ def main() -> None:
     ap.add_argument("--auto-scale", action="store_true",
                     help="detect with the fine-tuned network's stored scale (no --set cnn.seed_px)")
     ap.add_argument("--train-args", default="", help="extra `seedmap train fast-cnn` options (quoted)")
+    ap.add_argument("--model", type=Path, help="reuse this fine-tuned MODEL folder (no training; the timings are "
+                                               "then its train_metrics.json's training loop only)")
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "finetune.json")
     args = ap.parse_args()
 
@@ -147,10 +150,18 @@ def main() -> None:
     tag = time.strftime("%Y%m%d%H%M%S")
     before = _detect_eval(test_root, test, runs / f"before_{tag}", ["--set", f"cnn.seed_px={s_true:.3f}",
                                                                     "--set", f"cnn.threads={th}"], th)
-    model = runs / f"model_{tag}"
-    wall, cpu = _seedmap(["train", "fast-cnn", train, "--images-root", train_root, "--out", model, "--threads", th,
-                          *args.train_args.split()], th)
-    tm = json.loads((model / "train_metrics.json").read_text())
+    before_net = _detect_eval(test_root, test, runs / f"before_net_{tag}", ["--set", f"cnn.seed_px={s_true:.3f}",
+                                                                            "--set", f"cnn.threads={th}",
+                                                                            "--set", "cnn.refiner=none"], th)
+    if args.model is None:
+        model = runs / f"model_{tag}"
+        wall, cpu = _seedmap(["train", "fast-cnn", train, "--images-root", train_root, "--out", model, "--threads",
+                              th, *args.train_args.split()], th)
+        tm = json.loads((model / "train_metrics.json").read_text())
+    else:
+        model = args.model
+        tm = json.loads((model / "train_metrics.json").read_text())
+        wall, cpu = tm["wall_s_this_run"], tm["cpu_s"]
     scale_args = [] if args.auto_scale else ["--set", f"cnn.seed_px={tm['images_seed_px']:.3f}"]
     after = _detect_eval(test_root, test, runs / f"after_{tag}", ["--weights", model / "fast_cnn.onnx",
                                                                   "--set", f"cnn.threads={th}", *scale_args], th)
@@ -159,7 +170,8 @@ def main() -> None:
         "train_images": tm["train_images"], "heldout_in_training": tm.get("val_counts", {}).get("images"),
         "test_images": len(json.loads(test.read_text())["images"]),
         "test_seed_px_median": s_true, "labels_seed_px": tm.get("images_seed_px"), "labels_scale": tm.get("labels_scale"),
-        "before_shipped_at_true_scale": before, "after_finetune": after,
+        "before_shipped_at_true_scale": before, "before_shipped_network_only": before_net, "after_finetune": after,
+        "timings": "seedmap train fast-cnn process" if args.model is None else "training loop (train_metrics.json)",
         "train_command_defaults": {"steps": tm["steps"], "lr": tm["config"]["lr"], "threads": th,
                                    "extra": args.train_args},
         "finetune_wall_s": wall, "finetune_cpu_s": cpu,
@@ -169,7 +181,8 @@ def main() -> None:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=1))
-    print(json.dumps({k: res[k] for k in ("before_shipped_at_true_scale", "after_finetune", "finetune_wall_s",
+    print(json.dumps({k: res[k] for k in ("before_shipped_at_true_scale", "before_shipped_network_only",
+                                          "after_finetune", "finetune_wall_s",
                                           "finetune_cpu_s")}, indent=1))
 
 
