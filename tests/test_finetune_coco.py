@@ -177,3 +177,23 @@ def test_eval_detect_scores_a_detect_output_against_coco_labels(tiny_range, tmp_
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1 and "000099.png" in err[0] and str(bad) in err[0]
     assert not (tmp_path / "bad_metrics.json").exists()
+
+
+def test_each_photo_is_resized_by_its_own_seed_size(tmp_path):
+    from seedmap.detect.train_validate import plan_training
+
+    images, anns = [], []
+    for i, side in enumerate((10, 20, 40)):
+        cv2.imwrite(str(tmp_path / f"p{i}.png"), np.zeros((200, 300, 3), np.uint8))
+        images.append({"id": i + 1, "file_name": f"p{i}.png", "width": 300, "height": 200})
+        n = 5 if i < 2 else 2  # the third photo has too few labels for a size of its own
+        anns += [{"id": len(anns) + 1, "image_id": i + 1, "category_id": 1, "bbox": [5 + 50 * k, 5, side, side]}
+                 for k in range(n)]
+    p = tmp_path / "labels.json"
+    p.write_text(json.dumps({"images": images, "annotations": anns, "categories": [{"id": 1, "name": "seed"}]}))
+    plan = plan_training([p], None, None, 0.2, 0, 5.0)
+    val = plan.val[str(p)]
+    assert len(val) == 1 and plan.heldout[0].indices == tuple(val)
+    sides = np.concatenate([[(10, 20, 40)[k]] * (5 if k < 2 else 2) for k in plan.train[str(p)]])
+    assert plan.images_seed_px == np.median(sides) and plan.scale == pytest.approx(5.0 / np.median(sides))
+    assert plan.image_scales == {(str(p), 0): 0.5, (str(p), 1): 0.25}

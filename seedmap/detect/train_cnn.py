@@ -99,11 +99,11 @@ def is_arm_scan(dataset: str | Path) -> bool:
 
 def load_training_images(datasets: list[str | Path], frames: dict | None = None, min_area: int = 1,
                          progress: bool = False, images_root: str | Path | None = None,
-                         coco_scale: float = 1.0) -> list[TrainImage]:
+                         coco_scale: float = 1.0, image_scales: dict | None = None) -> list[TrainImage]:
     """Every (frame, camera) image of the simulated ``datasets`` with its targets (``arm`` set for arm scans); a
     ``.json`` entry is a COCO label file, its images under ``images_root`` (default: beside it), every image one
-    item (:func:`seedmap.detect.cnn_targets.labelled_targets`) resized by ``coco_scale``. ``frames``:
-    ``{str(dataset): indices}``."""
+    item (:func:`seedmap.detect.cnn_targets.labelled_targets`) resized by ``image_scales[(str(file), index)]``, else
+    ``coco_scale``. ``frames``: ``{str(dataset): indices}``."""
     from seedmap.io.images import read_rgb
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
@@ -117,7 +117,8 @@ def load_training_images(datasets: list[str | Path], frames: dict | None = None,
     for d in datasets:
         if is_coco_file(d):
             src = CocoSource(d, images_root)
-            items += [(coco_image_targets, src, k, coco_scale) for k in (frames or {}).get(str(d), range(len(src)))]
+            items += [(coco_image_targets, src, k, (image_scales or {}).get((str(d), k), coco_scale))
+                      for k in (frames or {}).get(str(d), range(len(src)))]
             continue
         ds = SeedmapDataset(d)
         if not ds.has_gt:
@@ -469,8 +470,9 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     net_seed_px = network_seed_px(init_path, TRAINED_SEED_PX["field"])
     plan = plan_training(list(train_sets), list(val_sets or []), images_root, cfg.val_fraction, cfg.seed,
                          net_seed_px)
-    tr = load_training_images(train_sets, plan.train, 1, progress, images_root, plan.scale)
-    va = load_training_images(val_sets or train_sets, plan.val, 1, progress, images_root, plan.scale)
+    tr = load_training_images(train_sets, plan.train, 1, progress, images_root, plan.scale, plan.image_scales)
+    va = load_training_images(val_sets or train_sets, plan.val, 1, progress, images_root, plan.scale,
+                              plan.image_scales)
     tr, va = [pad_to(im, cfg.crop) for im in tr], [pad_to(im, cfg.crop) for im in va]
     spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
     vrng = np.random.default_rng(cfg.seed + 1)

@@ -125,15 +125,22 @@ class TrainPlan:
     heldout: list[HeldOut]
     #: the labels' typical seed size in the user's images (px; None without COCO labels)
     images_seed_px: float | None
-    #: COCO images are resized by this factor (network seed size / images_seed_px)
+    #: COCO images are resized by this factor (network seed size / images_seed_px) ...
     scale: float
+    #: ... or, an image with at least PER_IMAGE_MIN_SEEDS labels, by network seed size / its own median seed size:
+    #: ``{(str(source), image index): factor}`` (photos of seeds at several sizes all train at the network's size)
+    image_scales: dict | None = None
+
+
+#: labelled seeds an image needs to be resized by its own median seed size (fewer: the median of all labels)
+PER_IMAGE_MIN_SEEDS = 5
 
 
 def plan_training(train_sets: list, val_sets: list | None, images_root, val_fraction: float, seed: int,
                   net_seed_px: float) -> TrainPlan:
     """The split (without ``val_sets``: the last frame of a simulated dataset, a seeded ``val_fraction`` of a COCO
     file's labelled images, :func:`split_coco`) and the scale that brings the COCO labels' median seed size to
-    ``net_seed_px``. Reads the label files only (no image)."""
+    ``net_seed_px`` (per image where it has enough labels: :class:`TrainPlan`). Reads the label files only."""
     from seedmap.detect.cnn_targets import is_coco_file
     from seedmap.detect.labels import CocoSource
     from seedmap.io.seedmap_dataset import SeedmapDataset
@@ -142,6 +149,7 @@ def plan_training(train_sets: list, val_sets: list | None, images_root, val_frac
     va: dict = {}
     heldout: list[HeldOut] = []
     sides = []
+    per_image: dict = {}
     for d in train_sets:
         if is_coco_file(d):
             src = CocoSource(d, images_root)
@@ -153,6 +161,10 @@ def plan_training(train_sets: list, val_sets: list | None, images_root, val_frac
                 tr[str(d)], va[str(d)] = split_coco(lab, unl, val_fraction, seed, Path(d))
                 heldout.append(HeldOut(coco=src, indices=tuple(va[str(d)])))
             sides.append(src.seed_sides(tr[str(d)]))
+            for k in set(tr[str(d)]) | set(va.get(str(d), [])):
+                own = src.seed_sides([k])
+                if len(own) >= PER_IMAGE_MIN_SEEDS:
+                    per_image[(str(d), k)] = float(np.median(own))
         else:
             n = len(SeedmapDataset(d))
             if val_sets:
@@ -178,7 +190,12 @@ def plan_training(train_sets: list, val_sets: list | None, images_root, val_frac
             raise InputError(f"the labelled seeds are {images_seed_px:.2g} px (median box side); the network needs "
                              f"seeds of at least {net_seed_px / 4.0:g} px (it would enlarge the images "
                              f"{scale:.1f}x, at most 4x)", coco)
-    return TrainPlan(tr, None if val_sets else va, heldout, images_seed_px, scale)
+    scales = {key: float(net_seed_px) / v for key, v in per_image.items()}
+    for (d, k), f in scales.items():
+        if f > 4.0:
+            raise InputError(f"image {k}: its labelled seeds are {per_image[(d, k)]:.2g} px (median box side); the "
+                             f"network needs seeds of at least {net_seed_px / 4.0:g} px", d)
+    return TrainPlan(tr, None if val_sets else va, heldout, images_seed_px, scale, scales)
 
 
 def heldout_report(weights: Path, init: str | Path | None, plan: TrainPlan, threads: int = 1,
