@@ -14,8 +14,9 @@ Steps, each through the real CLI in a subprocess (as a user runs it):
    before;
 2. ``seedmap train fast-cnn TRAIN.json --images-root ... --out MODEL`` with default settings (wall and CPU time of
    the process);
-3. ``seedmap detect TEST_IMAGES --weights MODEL/fast_cnn.onnx`` (+ ``--set cnn.seed_px=S`` unless ``--auto-scale``,
-   i.e. the detector reads the scale stored in the network) and ``seedmap eval detect``: F1 after, detect ms/image.
+3. ``seedmap detect TEST_IMAGES --weights MODEL/fast_cnn.onnx`` (+ ``--set cnn.seed_px=`` the stored
+   ``images_seed_px`` unless ``--auto-scale``, i.e. the detector reads the scale stored in the network) and
+   ``seedmap eval detect``: F1 after, detect ms/image; and the same network at the test labels' median seed size.
 
 Writes JSON (``--out``, default benchmarks/results/finetune.json).
 Usage: ``python benchmarks/bench_finetune.py [--train L.json --test L.json] [--work DIR] [--threads 2]``.
@@ -165,12 +166,17 @@ def main() -> None:
     scale_args = [] if args.auto_scale else ["--set", f"cnn.seed_px={tm['images_seed_px']:.3f}"]
     after = _detect_eval(test_root, test, runs / f"after_{tag}", ["--weights", model / "fast_cnn.onnx",
                                                                   "--set", f"cnn.threads={th}", *scale_args], th)
+    # the same network at the test labels' median seed size (what a detector that finds the scale would use)
+    after_true = _detect_eval(test_root, test, runs / f"after_true_{tag}", ["--weights", model / "fast_cnn.onnx",
+                                                                            "--set", f"cnn.threads={th}",
+                                                                            "--set", f"cnn.seed_px={s_true:.3f}"], th)
     res = {
         "train_labels": str(train), "test_labels": str(test),
         "train_images": tm["train_images"], "heldout_in_training": tm.get("val_counts", {}).get("images"),
         "test_images": len(json.loads(test.read_text())["images"]),
         "test_seed_px_median": s_true, "labels_seed_px": tm.get("images_seed_px"), "labels_scale": tm.get("labels_scale"),
         "before_shipped_at_true_scale": before, "before_shipped_network_only": before_net, "after_finetune": after,
+        "after_finetune_at_test_median_scale": after_true,
         "timings": "seedmap train fast-cnn process" if args.model is None else "training loop (train_metrics.json)",
         "train_command_defaults": {"steps": tm["steps"], "lr": tm["config"]["lr"], "threads": th,
                                    "extra": args.train_args},
