@@ -140,6 +140,8 @@ def test_training_can_start_from_shipped_weights(cnn_range, tmp_path):
                          init_weights=str(default_cnn_path()))
     m = train_cnn([cnn_range.root], tmp_path / "o", None, cfg, progress=False)
     assert (m["config"]["c1"], m["config"]["c2"]) == (8, 16)
+    # held-out box F1 (the last frame) of the network before and after: the same network, the same F1
+    assert m["val_f1_before"] > 0.5 and m["val_f1"] == pytest.approx(m["val_f1_before"], abs=0.01)
     img = cnn_range[1].left
     a = make_detector("fast", overrides=["cnn.refiner=none"]).detect(img)  # the shipped network alone
     b = CnnDetector(CnnConfig(weights=str(tmp_path / "o" / "fast_cnn.onnx"))).detect(img)  # no refiner: other weights

@@ -2,7 +2,7 @@
 
 A box without a mask trains the seed's inscribed ellipse, with its keypoint at the box centre; a fine-tune of the
 shipped network on a tiny COCO export of a simulated range lowers the held-out loss, and the network it writes runs
-through ``seedmap detect --weights`` on a folder of the images, at the seed size its labels had.
+through ``seedmap detect --weights`` on a folder of the images, at the scale between its labels' and its own seed size.
 """
 
 from __future__ import annotations
@@ -49,15 +49,17 @@ def test_fine_tuning_from_boxes_lowers_the_loss_and_detect_runs_the_network(tiny
     assert run_cli(["train", "fast-cnn", labels, "--images-root", tiny_range, "--out", out, "--init", "fast_cnn.onnx",
                     "--steps", "40", "--batch", "8", "--lr", "1e-3"], monkeypatch) == 0
     m = json.loads((out / "train_metrics.json").read_text())
-    assert m["train_images"] == 1 and m["val_images"] == 1  # the last image held out
+    assert m["train_images"] == 1 and m["val_images"] == 1  # one of the two labelled images held out
     assert m["final"]["val_loss"] < m["initial_val_loss"]
-    boxes = np.array([a["bbox"] for a in coco["annotations"] if a["image_id"] == 1])
-    assert m["seed_px"] == pytest.approx(np.median(np.sqrt(boxes[:, 2] * boxes[:, 3])))
+    tr_id = 2 if m["val_counts"]["n_gt"] == sum(a["image_id"] == 1 for a in coco["annotations"]) else 1
+    boxes = np.array([a["bbox"] for a in coco["annotations"] if a["image_id"] == tr_id])
+    assert m["images_seed_px"] == pytest.approx(np.median(np.sqrt(boxes[:, 2] * boxes[:, 3])))
+    assert m["seed_px"] == 5.0  # the shipped network's seed size: the images were resized to it
     det = tmp_path / "det"
     assert run_cli(["detect", tiny_range / "left", "--weights", out / "fast_cnn.onnx", "--detector", "fast",
-                    "--out", det], monkeypatch) == 0
+                    "--set", f"cnn.seed_px={m['images_seed_px']}", "--out", det], monkeypatch) == 0
     meta = json.loads((det / "meta.json").read_text())
-    assert meta["trained_seed_px"] == pytest.approx(m["seed_px"]) and meta["cnn_scale"] == 1.0
+    assert meta["trained_seed_px"] == 5.0 and meta["cnn_scale"] == pytest.approx(m["labels_scale"])
     assert meta["images"] == len(list((tiny_range / "left").glob("*.png"))) and meta["detections"] > 0
 
 

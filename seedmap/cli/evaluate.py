@@ -20,15 +20,17 @@ def _check_json_out(path: Path, inputs: list, overwrite: bool, key: str) -> None
 
 @eval_app.command("detect")
 def eval_detect_cmd(
-    dataset: Path = typer.Argument(..., help="Simulated dataset with ground truth."),
-    detections: Path = typer.Argument(..., help="Folder written by `seedmap detect`."),
+    dataset: Path = typer.Argument(..., help="Simulated dataset with ground truth, or a COCO label file (.json) of "
+                                             "the detected images (names relative to what was detected)."),
+    detections: Path = typer.Argument(..., help="Folder written by `seedmap detect` (or its detections_coco.json)."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Metrics JSON (default DETECTIONS/detect_metrics.json)."),
     iou: float = typer.Option(0.5, "--iou", help="Box IoU threshold for a true positive."),
     matching: str = typer.Option("greedy", "--matching", help="greedy | hungarian one-to-one matching."),
     min_gt_area: Optional[int] = typer.Option(
         None, "--min-gt-area",
         help="Ignore GT instances with fewer visible pixels (default: the detectable-seed size, "
-             "10 px at 1434 px wide, scaled with the image: seedmap.detect.config; 0 scores every sliver)."),
+             "10 px at 1434 px wide, scaled with the image: seedmap.detect.config; 0 scores every sliver; "
+             "COCO labels: every labelled seed counts)."),
     per_frame: bool = typer.Option(False, "--per-frame", help="Also print the per-frame table."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an --out metrics file seedmap wrote."),
 ) -> None:

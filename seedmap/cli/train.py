@@ -13,6 +13,15 @@ from seedmap.cli.app import ConfigOpt, SetOpt, train_app
 from seedmap.errors import SeedmapError
 from seedmap.outputs import check_output_file, check_resume_dir, is_seedmap_json, mark
 
+#: ``train fast-cnn --init`` default: the network a fine-tune starts from (a shipped file name or a path)
+DEFAULT_INIT = "fast_cnn.onnx"
+#: ``train fast-cnn --steps`` default (a fine-tune; the shipped networks were trained 5000 steps from scratch)
+DEFAULT_STEPS = 1500
+#: ``train fast-cnn --lr`` default
+DEFAULT_LR = 2e-3
+#: ``train fast-cnn --threads`` default (torch CPU threads: two threads on a busy 2-core machine ran 16x slower)
+DEFAULT_THREADS = 1
+
 
 def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],
                   config: Optional[Path], set_: Optional[List[str]], resume: bool, overwrite: bool) -> None:
@@ -202,11 +211,12 @@ def train_fast_cnn_cmd(
                                                                  "last frame / image of each)."),
     images_root: Optional[Path] = typer.Option(None, "--images-root",
                                                help="Folder of the COCO files' images (default: beside each file)."),
-    steps: int = typer.Option(5000, "--steps", help="Training steps."),
+    steps: int = typer.Option(DEFAULT_STEPS, "--steps", help="Training steps (the shipped networks: 5000 from "
+                                                                 "scratch)."),
     batch: int = typer.Option(12, "--batch", help="Crops per step."),
     crop: int = typer.Option(96, "--crop", help="Crop size (px)."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the initialisation and crops."),
-    threads: int = typer.Option(1, "--threads", help="torch CPU threads."),
+    threads: int = typer.Option(DEFAULT_THREADS, "--threads", help="torch CPU threads."),
     c1: int = typer.Option(8, "--c1", help="Channels at full resolution."),
     c2: int = typer.Option(16, "--c2", help="Channels at half resolution."),
     iou_weight: float = typer.Option(1.0, "--iou-weight", help="Weight of the box 1-GIoU loss (0 = L1 only)."),
@@ -218,23 +228,33 @@ def train_fast_cnn_cmd(
                                                  help="Fraction of the crops from arm-scan datasets (seedmap "
                                                       "simulate panicle) when ranges are given too (default: "
                                                       "every image alike)."),
-    init: Optional[Path] = typer.Option(None, "--init", help="Start from these fast_cnn .onnx weights "
-                                                              "(fine-tuning) instead of a random initialisation; "
-                                                              "fast_cnn.onnx = the shipped field network."),
-    lr: float = typer.Option(2e-3, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
+    init: str = typer.Option(DEFAULT_INIT, "--init", help="Start from these fast_cnn .onnx weights (fine-tuning; "
+                                                           "default: the shipped field network); none = a random "
+                                                           "initialisation (training from scratch)."),
+    lr: float = typer.Option(DEFAULT_LR, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
+    val_fraction: float = typer.Option(0.2, "--val-fraction",
+                                       help="COCO without --val: fraction of the labelled images held out (at "
+                                            "least 1), drawn with --seed."),
     resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.safetensors."),
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
 
-    The defaults reproduce the shipped weights from data/det_s1 and det_s31-35, --val data/det_s36. On your own
-    labelled images: LABELS.json --images-root DIR --init fast_cnn.onnx fine-tunes the shipped network."""
+    By default it fine-tunes the shipped field network. On your own labelled images (COCO boxes, polygons or RLE
+    masks): LABELS.json --images-root DIR; the images are resized so that the labelled seeds have the network's
+    seed size, the held-out images' box F1 before and after is printed, and `seedmap detect --weights
+    OUT/fast_cnn.onnx` runs the network at that scale. The shipped networks were trained with --init none --steps
+    5000 on data/det_s1 and det_s31-35, --val data/det_s36."""
     from seedmap.detect.learned import require_torch
 
     require_torch()
     from seedmap.detect.runtime import shipped_or_path
     from seedmap.detect.train_cnn import CnnTrainConfig, train_cnn
 
-    init = shipped_or_path(init) if init is not None else None
+    init_p = None if init.strip().lower() == "none" else shipped_or_path(init)
+    if init_p is not None and not init_p.is_file():
+        raise SeedmapError(f"{init_p}: --init weights not found (a fast_cnn .onnx file, or none)")
+    if not 0.0 < val_fraction < 1.0:
+        raise SeedmapError(f"--val-fraction must be in (0, 1), got {val_fraction:g}")
     for name, v in (("--steps", steps), ("--batch", batch), ("--crop", crop)):
         if v < 1:
             raise SeedmapError(f"{name} must be >= 1, got {v}")
@@ -246,18 +266,27 @@ def train_fast_cnn_cmd(
                 raise SeedmapError(f"{d}: COCO label file not found")
         elif not d.is_dir():
             raise SeedmapError(f"{d}: dataset folder not found")
-    check_resume_dir(out, "training", [*data, *(val or []), init, images_root], strict=False)
+    check_resume_dir(out, "training", [*data, *(val or []), init_p, images_root], strict=False)
     if (out / "fast_cnn.onnx").exists() and not resume:
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
                          iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
-                         arm_fraction=arm_fraction, lr=lr,
-                         init_weights=str(init) if init else None)
+                         arm_fraction=arm_fraction, lr=lr, val_fraction=val_fraction,
+                         init_weights=str(init_p) if init_p else None)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume, images_root=images_root)
     mark(out, "training")
     f = m["final"] or {}
     typer.echo(f"fast-cnn written to {out / 'fast_cnn.onnx'} ({m['steps']} steps, {m['cpu_s']:.0f} s CPU; "
                f"held-out loss {f.get('val_loss', float('nan')):.3f}, box L1 {f.get('val_box_l1_px', float('nan')):.2f} px)")
+    if "images_seed_px" in m:
+        typer.echo(f"labelled seeds {m['images_seed_px']:.1f} px: images resized {m['labels_scale']:.3g}x to the "
+                   f"network's {m['seed_px']:g}-px seeds (seedmap detect --weights applies the same scale)")
+    if "val_f1" in m:
+        c = m["val_counts"]
+        before = (f"{m['val_f1_before']:.3f} before (the --init network), " if "val_f1_before" in m else "")
+        typer.echo(f"held-out box F1 (IoU >= 0.5, {c['images']} images, {c['n_gt']} seeds): {before}"
+                   f"{m['val_f1']:.3f} after (P {m['val_precision']:.3f}, R {m['val_recall']:.3f}, "
+                   f"threshold {m['val_threshold']:g})")
 
 
 @train_app.command("export")

@@ -9,7 +9,8 @@
 * every labelled seed is a heatmap peak, however small (the user labelled it: no sliver is ignored).
 
 Images listed without annotations train as background. :func:`labels_seed_px` gives the labels' typical seed
-size, recorded in the trained network so that ``cnn.seed_px`` scales other images to it.
+size; training resizes every labelled image by ``network seed size / labels' seed size`` (:func:`rescale_targets`)
+so that the network learns the seeds at the size it sees them at, and records both sizes.
 """
 
 from __future__ import annotations
@@ -128,16 +129,36 @@ def pad_to(ti: TrainImage, size: int) -> TrainImage:
     return TrainImage(rgb, inst, ti.boxes, ti.kp, ti.centers, ti.area, ti.arm, ti.labelled)
 
 
-def coco_image_targets(src: CocoSource, k: int) -> TrainImage:
+def rescale_targets(ti: TrainImage, s: float) -> TrainImage:
+    """``ti`` resized by ``s`` (image: area averaging when shrinking, bilinear when enlarging; instance map: nearest;
+    boxes, keypoints and areas scaled; pixel centres at integers)."""
+    import cv2
+
+    if s == 1.0:
+        return ti
+    h, w = ti.inst.shape
+    ws, hs = max(1, int(round(w * s))), max(1, int(round(h * s)))
+    sx, sy = ws / w, hs / h
+    rgb = cv2.resize(ti.rgb, (ws, hs), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_LINEAR)
+    inst = cv2.resize(ti.inst, (ws, hs), interpolation=cv2.INTER_NEAREST)
+    boxes = (ti.boxes * np.array([sx, sy, sx, sy], np.float32)).astype(np.float32)
+    kp = ((ti.kp + 0.5) * np.array([sx, sy], np.float32) - 0.5).astype(np.float32)
+    c = np.round(kp).astype(np.int64)
+    c[:, 0] = np.clip(c[:, 0], 0, ws - 1)
+    c[:, 1] = np.clip(c[:, 1], 0, hs - 1)
+    return TrainImage(rgb, inst, boxes, kp, c, (ti.area * sx * sy).astype(np.float32), ti.arm, ti.labelled)
+
+
+def coco_image_targets(src: CocoSource, k: int, scale: float = 1.0) -> TrainImage:
     """Targets of image ``k`` of a COCO source; an image whose size differs from the one its labels declare is
-    refused (labels made on a rotated or resized copy)."""
+    refused (labels made on a rotated or resized copy). ``scale``: resize image and targets (:func:`rescale_targets`)."""
     li = src[k]
     im = src.images[k]
     h, w = li.image.shape[:2]
     if (im.get("width"), im.get("height")) not in ((w, h), (None, None)):
         raise InputError(f"image {im['file_name']!r} is {w}x{h} but its labels say "
                          f"{im.get('width')}x{im.get('height')} (labelled on a rotated or resized copy?)", src.path)
-    return labelled_targets(li)
+    return rescale_targets(labelled_targets(li), scale)
 
 
 def labels_seed_px(images: list[TrainImage]) -> float | None:

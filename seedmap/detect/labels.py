@@ -87,6 +87,53 @@ def rle_counts_to_string(counts: list[int]) -> str:
     return "".join(out)
 
 
+def rle_window(counts: list[int], h: int, w: int) -> tuple[np.ndarray, int, int]:
+    """Uncompressed COCO RLE -> ``(mask, y0, x0)``: the mask cut to the rows and columns its pixels span (decoded
+    in that window only: a seed's mask in a 24-megapixel photo costs its own size, not the image's)."""
+    c = np.asarray([int(v) for v in counts], np.int64)
+    if c.sum() != h * w:
+        raise ValueError(f"RLE covers {int(c.sum())} pixels, image has {h * w}")
+    if (c < 0).any():
+        raise ValueError("RLE has negative run lengths")
+    ends = np.cumsum(c)
+    starts = ends - c
+    ones = (np.arange(len(c)) % 2 == 1) & (c > 0)
+    if not ones.any():
+        return np.zeros((0, 0), np.uint8), 0, 0
+    s1, e1 = starts[ones], ends[ones]
+    c0, c1 = int(s1.min() // h), int((e1.max() - 1) // h)
+    flat = np.zeros((c1 - c0 + 1) * h, np.uint8)
+    for a, b in zip(s1 - c0 * h, e1 - c0 * h):
+        flat[a:b] = 1
+    win = flat.reshape(c1 - c0 + 1, h).T
+    rows = np.flatnonzero(win.any(axis=1))
+    return np.ascontiguousarray(win[rows[0]:rows[-1] + 1]), int(rows[0]), c0
+
+
+def segmentation_window(seg: object, h: int, w: int) -> tuple[np.ndarray, int, int]:
+    """COCO ``segmentation`` (polygons or RLE) of an ``h x w`` image -> ``(mask, y0, x0)``: the uint8 mask within
+    the window at row ``y0``, column ``x0`` that holds all its pixels (decoded there only)."""
+    if isinstance(seg, dict) and "counts" in seg:
+        sh = seg.get("size", [h, w])
+        counts = seg["counts"]
+        if isinstance(counts, (str, bytes)):
+            counts = rle_string_to_counts(counts)
+        return rle_window(counts, int(sh[0]), int(sh[1]))
+    if isinstance(seg, list):
+        pts = [np.asarray(q, np.float64).reshape(-1, 2) for q in seg]
+        pts = [q for q in pts if len(q) >= 3]
+        if not pts:
+            return np.zeros((0, 0), np.uint8), 0, 0
+        allp = np.concatenate(pts)
+        x0, y0 = (int(v) for v in np.clip(np.floor(allp.min(axis=0)), 0, [w, h]))
+        x1, y1 = (int(v) for v in np.clip(np.ceil(allp.max(axis=0)) + 1, 0, [w, h]))
+        if x1 <= x0 or y1 <= y0:
+            return np.zeros((0, 0), np.uint8), 0, 0
+        shifted = [(q - [x0, y0]).ravel().tolist() for q in pts]
+        return segmentation_mask(shifted, y1 - y0, x1 - x0), y0, x0
+    raise ValueError("segmentation must be a polygon list or an RLE dict")
+
+
 def segmentation_mask(seg: object, h: int, w: int) -> np.ndarray:
     """COCO ``segmentation`` (polygons or RLE) -> ``h x w`` uint8 mask."""
     if isinstance(seg, list):
@@ -164,6 +211,17 @@ def _check_coco_annotation(a, sizes: dict, cats: dict, p: Path) -> None:
                              f"{wh[0]:g}x{wh[1]:g} image {a['image_id']}", p)
     elif not a.get("segmentation"):
         raise InputError(f"annotation {aid}: neither 'bbox' nor 'segmentation'", p)
+    seg = a.get("segmentation")
+    wh = sizes[a["image_id"]]
+    if isinstance(seg, list) and seg and wh is not None:
+        try:
+            pts = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2) for q in seg])
+        except (TypeError, ValueError):
+            raise InputError(f"annotation {aid}: segmentation polygons must be lists of x, y numbers", p) from None
+        if len(pts) and (not np.all(np.isfinite(pts)) or pts.min() < -1 or pts[:, 0].max() > wh[0] + 1
+                         or pts[:, 1].max() > wh[1] + 1):
+            raise InputError(f"annotation {aid}: segmentation polygon is outside the {wh[0]:g}x{wh[1]:g} image "
+                             f"{a['image_id']}", p)
 
 
 class CocoSource:
@@ -203,6 +261,37 @@ class CocoSource:
     def __len__(self) -> int:
         return len(self.images)
 
+    def labelled_indices(self) -> list[int]:
+        """Indices of the images that have at least one annotation."""
+        return [k for k, im in enumerate(self.images) if self.anns.get(im["id"])]
+
+    def seed_sides(self, indices) -> np.ndarray:  # noqa: ANN001 - iterable of image indices
+        """Geometric mean of the box sides (px) of every annotation of the images ``indices``: from ``bbox``, else
+        from the segmentation's extent (polygon points, or the decoded RLE mask)."""
+        out = []
+        for k in indices:
+            im = self.images[k]
+            for a in self.anns.get(im["id"], []):
+                if "bbox" in a:
+                    _, _, bw, bh = (float(v) for v in a["bbox"])
+                else:
+                    seg = a["segmentation"]
+                    if isinstance(seg, list):
+                        pts = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2) for q in seg])
+                        bw, bh = np.ptp(pts[:, 0]), np.ptp(pts[:, 1])
+                    else:
+                        try:
+                            sh = seg.get("size") or [im.get("height"), im.get("width")]
+                            m, _, _ = segmentation_window(seg, int(sh[0]), int(sh[1]))
+                        except (ValueError, TypeError, AttributeError) as e:
+                            raise InputError(f"annotation {a.get('id')}: bad segmentation ({e})", self.path) from None
+                        ys, xs = np.nonzero(m)
+                        if not len(xs):
+                            continue
+                        bw, bh = np.ptp(xs) + 1, np.ptp(ys) + 1
+                out.append(float(np.sqrt(max(bw, 0) * max(bh, 0))))
+        return np.asarray(out, np.float64)
+
     def __getitem__(self, i: int) -> LabelledImage:
         im = self.images[i]
         img = read_photo(self.root / im["file_name"])  # as `seedmap detect` reads it (grayscale, 16-bit converted)
@@ -210,23 +299,26 @@ class CocoSource:
         labels = np.zeros((h, w), np.int32)
         boxes = []
         for a in self.anns.get(im["id"], []):
+            seg = a.get("segmentation")
+            if isinstance(seg, dict) and "size" in seg and [int(v) for v in seg["size"]] != [h, w]:
+                raise InputError(f"annotation {a.get('id')}: mask size {tuple(seg['size'])} != image {h}x{w}",
+                                 self.path)
             try:
-                m = segmentation_mask(a["segmentation"], h, w) if a.get("segmentation") else None
-            except (ValueError, TypeError) as e:
+                m, y0, x0 = segmentation_window(seg, h, w) if seg else (None, 0, 0)
+            except (ValueError, TypeError, AttributeError) as e:
                 raise InputError(f"annotation {a.get('id')}: bad segmentation ({e})", self.path) from None
-            if m is not None and m.shape != (h, w):
-                raise InputError(f"annotation {a.get('id')}: mask size {m.shape} != image {h}x{w}", self.path)
             if "bbox" in a:
                 x, y, bw, bh = (float(v) for v in a["bbox"])
                 box = [x, y, x + bw, y + bh]
             elif m is not None and m.any():
                 ys, xs = np.nonzero(m)
-                box = [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
+                box = [x0 + xs.min(), y0 + ys.min(), x0 + xs.max() + 1, y0 + ys.max() + 1]
             else:
                 continue
             boxes.append(box)
-            if m is not None:
-                labels[(m > 0) & (labels == 0)] = len(boxes)
+            if m is not None and m.size:
+                sub = labels[y0:y0 + m.shape[0], x0:x0 + m.shape[1]]
+                sub[(m[:sub.shape[0], :sub.shape[1]] > 0) & (sub == 0)] = len(boxes)
         return LabelledImage(img, np.asarray(boxes, np.float64).reshape(-1, 4), labels, im["file_name"])
 
 
@@ -265,3 +357,68 @@ def open_labelled(path: str | Path, images_root: str | Path | None = None, frame
     if not p.exists():
         raise InputError("training data not found", p)
     return SeedmapSource(p, frames=frames)
+
+
+def read_coco_boxes(path: str | Path) -> list[dict]:
+    """The labelled boxes of a COCO file, without reading its images (``seedmap eval detect``'s ground truth):
+    ``[{"file_name", "width", "height", "boxes" (N, 4) x0, y0, x1, y1, "areas" (N,)}]`` in the order of ``images``.
+    A box comes from ``bbox``, else from the segmentation's extent; ``areas`` from ``area``, else the box's area.
+    Checked as for training (:class:`CocoSource`) except that the image files need not exist; no annotation at all
+    is an error."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("COCO label file not found", p)
+    try:
+        d = json.loads(read_text(p, "COCO label file"))
+    except json.JSONDecodeError as e:
+        raise InputError(f"not valid JSON ({e.msg} at line {e.lineno})", p) from None
+    if not isinstance(d, dict) or "images" not in d or "annotations" not in d:
+        raise InputError("not a COCO file (needs 'images' and 'annotations')", p)
+    images = d["images"]
+    if not isinstance(images, list) or not images:
+        raise InputError("COCO 'images' is empty (nothing to evaluate)", p)
+    sizes: dict = {}
+    for k, im in enumerate(images):
+        if not isinstance(im, dict) or "id" not in im or "file_name" not in im:
+            raise InputError(f"images[{k}] needs 'id' and 'file_name'", p)
+        if im["id"] in sizes:
+            raise InputError(f"image id {im['id']} appears twice", p)
+        wh = (im.get("width"), im.get("height"))
+        sizes[im["id"]] = wh if all(isinstance(v, (int, float)) and v > 0 for v in wh) else None
+    cats = {c["id"]: c.get("name", "") for c in d.get("categories", []) if isinstance(c, dict) and "id" in c}
+    anns = d["annotations"] if isinstance(d["annotations"], list) else []
+    if not anns:
+        raise InputError("no annotations (no labelled seed to evaluate against)", p)
+    per: dict = {i: ([], []) for i in sizes}
+    for a in anns:
+        _check_coco_annotation(a, sizes, cats, p)
+        if "bbox" in a:
+            x, y, bw, bh = (float(v) for v in a["bbox"])
+            box = [x, y, x + bw, y + bh]
+        else:
+            seg = a["segmentation"]
+            try:
+                if isinstance(seg, list):
+                    pts = np.concatenate([np.asarray(q, np.float64).reshape(-1, 2) for q in seg])
+                    box = [*pts.min(axis=0), *pts.max(axis=0)]
+                else:
+                    wh = sizes[a["image_id"]] or (0, 0)
+                    sh = seg.get("size") or [wh[1], wh[0]]
+                    m, y0, x0 = segmentation_window(seg, int(sh[0]), int(sh[1]))
+                    ys, xs = np.nonzero(m)
+                    if not len(xs):
+                        continue
+                    box = [x0 + xs.min(), y0 + ys.min(), x0 + xs.max() + 1, y0 + ys.max() + 1]
+            except (ValueError, TypeError, AttributeError) as e:
+                raise InputError(f"annotation {a.get('id', '?')}: bad segmentation ({e})", p) from None
+        area = a.get("area")
+        per[a["image_id"]][0].append(box)
+        per[a["image_id"]][1].append(float(area) if isinstance(area, (int, float)) and area > 0
+                                     else (box[2] - box[0]) * (box[3] - box[1]))
+    out = []
+    for im in images:
+        b, ar = per[im["id"]]
+        wh = sizes[im["id"]] or (None, None)
+        out.append({"file_name": str(im["file_name"]), "width": wh[0], "height": wh[1],
+                    "boxes": np.asarray(b, np.float64).reshape(-1, 4), "areas": np.asarray(ar, np.float64)})
+    return out

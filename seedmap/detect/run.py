@@ -127,7 +127,8 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
 def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: str | Path | None = None,
                     iou_threshold: float = 0.5, matching: str = "greedy", min_gt_area: float | None = None,
                     progress: bool = True, overwrite: bool = False):
-    """Evaluate a detections folder against a simulated dataset's GT; writes ``detect_metrics.json``.
+    """Evaluate a detections folder against a simulated dataset's GT, or against a COCO label file (``dataset`` a
+    ``.json``: :func:`_eval_detect_labels`); writes ``detect_metrics.json``.
 
     ``min_gt_area=None`` ignores GT slivers below the detectable-seed size at the dataset's width
     (seedmap.detect.config.min_visible_seed_px, the same rule as the ``gt`` oracle); 0 scores all.
@@ -139,6 +140,9 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
     if out_json is not None:
         outputs.check_output_file(Path(out_json), [dataset, detections_dir], overwrite,
                                   lambda p: outputs.is_seedmap_json(p, "min_gt_area_px"), what="metrics file")
+    if Path(dataset).suffix.lower() == ".json":
+        return _eval_detect_labels(Path(dataset), Path(detections_dir), out_json, iou_threshold, matching,
+                                   min_gt_area or 0.0)
     ds = SeedmapDataset(dataset)
     if not (Path(dataset) / "gt" / "instances").is_dir():
         raise InputError("dataset has no ground truth (gt/instances/) to evaluate against", dataset)
@@ -155,17 +159,85 @@ def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: s
     if min_gt_area is None:
         min_gt_area = min_visible_seed_px(ds.calib.width)
     m = evaluate_detections(ds, dets, iou_threshold, matching, min_gt_area, progress)  # type: ignore[arg-type]
-    out = Path(out_json) if out_json else Path(detections_dir) / "detect_metrics.json"
+    return m, _write_detect_metrics(m, Path(dataset), Path(detections_dir), out_json, float(min_gt_area))
+
+
+def _write_detect_metrics(m, dataset: Path, detections: Path, out_json: str | Path | None,  # noqa: ANN001
+                          min_gt_area: float) -> Path:
+    """``detect_metrics.json`` (``out_json``, else beside the detections) with the detector's name from meta.json."""
+    det_dir = detections if detections.is_dir() else detections.parent
+    out = Path(out_json) if out_json else det_dir / "detect_metrics.json"
     d = m.to_dict()
-    meta_p = Path(detections_dir) / "meta.json"
+    meta_p = det_dir / "meta.json"
     if meta_p.is_file():
         try:
             d["detector"] = json.loads(meta_p.read_text(encoding="utf-8")).get("detector")
         except ValueError:  # not JSON, or not UTF-8 text: the detector name is left out
             pass
-    d["dataset"] = str(Path(dataset).resolve())
+    d["dataset"] = str(dataset.resolve())
     d["min_gt_area_px"] = float(min_gt_area)
     text = json.dumps(d, indent=2, default=lambda x: float(x) if isinstance(x, np.floating) else x)
     with outputs.os_errors(out):
         atomic_write_text(out, text)
-    return m, out
+    return out
+
+
+def _read_coco_detections(path: Path) -> dict[str, tuple]:
+    """``{image name: (Detections, width, height)}`` of a ``seedmap detect`` folder's ``detections_coco.json`` (or
+    that file itself): boxes from ``bbox``, scores, keypoints from ``keypoints`` (else the box centre)."""
+    from seedmap.detect.io import COCO_NAME
+    from seedmap.io.text import read_text
+    from seedmap.records import Detections
+
+    p = path / COCO_NAME if path.is_dir() else path
+    if not p.is_file():
+        raise InputError(f"no {COCO_NAME} found (write one with `seedmap detect`)", p)
+    try:
+        d = json.loads(read_text(p, COCO_NAME))
+        ims = {im["id"]: (str(im["file_name"]), int(im.get("width") or 0), int(im.get("height") or 0))
+               for im in d["images"]}
+        per: dict = {i: [] for i in ims}
+        for a in d["annotations"]:
+            x, y, w, h = (float(v) for v in a["bbox"])
+            kp = a.get("keypoints") or [x + w / 2 - 0.5, y + h / 2 - 0.5]
+            per[a["image_id"]].append((x, y, x + w, y + h, float(a.get("score", 1.0)), float(kp[0]), float(kp[1])))
+    except (ValueError, KeyError, TypeError, IndexError) as e:
+        raise InputError(f"not a seedmap detections COCO file ({type(e).__name__}: {e})", p) from None
+    out = {}
+    for i, (name, w, h) in ims.items():
+        r = np.asarray(per[i], np.float64).reshape(-1, 7)
+        bw, bh = r[:, 2] - r[:, 0], r[:, 3] - r[:, 1]
+        ell = np.c_[r[:, 5], r[:, 6], np.maximum(bw, bh), np.minimum(bw, bh), np.zeros(len(r))]
+        out[name] = (Detections(boxes=r[:, :4], scores=r[:, 4], ellipses=ell), w, h)
+    return out
+
+
+def _eval_detect_labels(labels: Path, detections: Path, out_json: str | Path | None, iou_threshold: float,
+                        matching: str, min_gt_area: float):  # noqa: ANN202 - (DetectMetrics, Path)
+    """Score a ``seedmap detect`` output against a COCO label file: the label file's images are found among the
+    detected images by name (the path relative to what was detected; else the bare file name when that is
+    unique); detected images without labels are left out. Every labelled seed counts unless ``min_gt_area`` > 0."""
+    from seedmap.detect.labels import read_coco_boxes
+    from seedmap.eval.detect_metrics import evaluate_labelled
+
+    gt = read_coco_boxes(labels)
+    dets = _read_coco_detections(detections)
+    by_base: dict = {}
+    for name in dets:
+        by_base.setdefault(Path(name).name, []).append(name)
+    matched = {}
+    for g in gt:
+        name = g["file_name"]
+        if name not in dets:
+            cand = by_base.get(Path(name).name, [])
+            if len(cand) != 1:
+                raise InputError(f"image {name!r} has no detections in {detections} (detect the folder the labels' "
+                                 "file names are relative to)", labels)
+            name = cand[0]
+        det, w, h = dets[name]
+        if w and h and g["width"] and g["height"] and (w, h) != (int(g["width"]), int(g["height"])):
+            raise InputError(f"image {g['file_name']!r} is {g['width']}x{g['height']} in the labels but the "
+                             f"detections were made on {w}x{h} pixels", labels)
+        matched[g["file_name"]] = det
+    m = evaluate_labelled(gt, matched, iou_threshold, matching, min_gt_area)  # type: ignore[arg-type]
+    return m, _write_detect_metrics(m, labels, detections, out_json, min_gt_area)

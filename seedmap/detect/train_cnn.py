@@ -40,8 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seedmap.detect.cnn_targets import (TrainImage, coco_image_targets, image_targets, is_coco_file,
-                                        labels_seed_px, pad_to)
+from seedmap.detect.cnn_targets import TrainImage, coco_image_targets, image_targets, is_coco_file, pad_to
 from seedmap.detect.labels import CocoSource
 from seedmap.errors import InputError
 from seedmap.progress import Progress, track
@@ -99,10 +98,12 @@ def is_arm_scan(dataset: str | Path) -> bool:
 
 
 def load_training_images(datasets: list[str | Path], frames: dict | None = None, min_area: int = 1,
-                         progress: bool = False, images_root: str | Path | None = None) -> list[TrainImage]:
+                         progress: bool = False, images_root: str | Path | None = None,
+                         coco_scale: float = 1.0, image_scales: dict | None = None) -> list[TrainImage]:
     """Every (frame, camera) image of the simulated ``datasets`` with its targets (``arm`` set for arm scans); a
     ``.json`` entry is a COCO label file, its images under ``images_root`` (default: beside it), every image one
-    item (:func:`seedmap.detect.cnn_targets.labelled_targets`). ``frames``: ``{str(dataset): indices}``."""
+    item (:func:`seedmap.detect.cnn_targets.labelled_targets`) resized by ``image_scales[(str(file), index)]``, else
+    ``coco_scale``. ``frames``: ``{str(dataset): indices}``."""
     from seedmap.io.images import read_rgb
     from seedmap.io.seedmap_dataset import SeedmapDataset
 
@@ -116,7 +117,8 @@ def load_training_images(datasets: list[str | Path], frames: dict | None = None,
     for d in datasets:
         if is_coco_file(d):
             src = CocoSource(d, images_root)
-            items += [(coco_image_targets, src, k) for k in (frames or {}).get(str(d), range(len(src)))]
+            items += [(coco_image_targets, src, k, (image_scales or {}).get((str(d), k), coco_scale))
+                      for k in (frames or {}).get(str(d), range(len(src)))]
             continue
         ds = SeedmapDataset(d)
         if not ds.has_gt:
@@ -352,6 +354,8 @@ class CnnTrainConfig:
     #: evaluate the held-out loss every this many steps (and write the checkpoint)
     val_every: int = 250
     val_crops: int = 96
+    #: COCO labels without held-out files: this fraction of the labelled images (at least one) is held out
+    val_fraction: float = 0.2
     threads: int = 1
     extra: dict = field(default_factory=dict)
 
@@ -442,10 +446,13 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     """Train :class:`SeedNet` on simulated ranges or COCO label files (``.json``, images under ``images_root``);
     write ``out/fast_cnn.onnx`` + checkpoint + metrics.
 
-    Held-out split: ``val_sets`` when given, else the last frame of every training set (its left
-    and right image; a COCO file's last image). ``resume`` continues from ``out/checkpoint.safetensors``.
-    Returns the metrics dict (also written to ``out/train_metrics.json``); with COCO labels the network records
-    their typical seed size (``seed_px``, px), which ``cnn.seed_px`` scales other images to.
+    Held-out split: ``val_sets`` when given, else the last frame of every simulated training set (its left and
+    right image) and a seeded ``cfg.val_fraction`` of a COCO file's labelled images
+    (:mod:`seedmap.detect.train_validate`). COCO images are resized so that their labels' median seed size becomes
+    the seed size of the starting network (``cfg.init_weights``' ``seed_px``, else the shipped field network's); the
+    exported network records ``seed_px`` (what it expects in its input) and ``images_seed_px`` (the labels' size in
+    the user's images). ``resume`` continues from ``out/checkpoint.safetensors``. Returns the metrics dict (also
+    written to ``out/train_metrics.json``), with the held-out box F1 of the trained and the starting network.
     """
     import torch
 
@@ -456,20 +463,16 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     torch.set_num_threads(max(1, int(cfg.threads)))
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    if val_sets:
-        tr = load_training_images(train_sets, None, 1, progress, images_root)
-        va = load_training_images(val_sets, None, 1, progress, images_root)
-    else:
-        fr_tr, fr_va = {}, {}
-        for d in train_sets:
-            n = training_set_size(d, images_root)
-            if n < 2:
-                raise InputError(f"needs at least 2 {'images' if is_coco_file(d) else 'frames'} for a held-out "
-                                 "split (or pass --val)", d)
-            fr_tr[str(d)] = range(n - 1)
-            fr_va[str(d)] = [n - 1]
-        tr = load_training_images(train_sets, fr_tr, 1, progress, images_root)
-        va = load_training_images(train_sets, fr_va, 1, progress, images_root)
+    from seedmap.detect.config import TRAINED_SEED_PX
+    from seedmap.detect.train_validate import heldout_report, network_seed_px, plan_training
+
+    init_path = cfg.init_weights if cfg.init_weights else None
+    net_seed_px = network_seed_px(init_path, TRAINED_SEED_PX["field"])
+    plan = plan_training(list(train_sets), list(val_sets or []), images_root, cfg.val_fraction, cfg.seed,
+                         net_seed_px)
+    tr = load_training_images(train_sets, plan.train, 1, progress, images_root, plan.scale, plan.image_scales)
+    va = load_training_images(val_sets or train_sets, plan.val, 1, progress, images_root, plan.scale,
+                              plan.image_scales)
     tr, va = [pad_to(im, cfg.crop) for im in tr], [pad_to(im, cfg.crop) for im in va]
     spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
     vrng = np.random.default_rng(cfg.seed + 1)
@@ -555,10 +558,12 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
             "cpu_s": prev_cpu + time.process_time() - t_cpu0,
             "wall_s_this_run": time.perf_counter() - t_wall0,
             "final": history[-1] if history else None}
-    seed_px = labels_seed_px([im for im in tr if im.labelled])
-    if seed_px is not None:
-        info["seed_px"] = seed_px
-    export_onnx(net, out / "fast_cnn.onnx", info)
-    metrics = {**info, "history": history}
+    if plan.images_seed_px is not None:
+        # the network expects seeds of seed_px in its input; the user's images show them at images_seed_px
+        info["seed_px"] = net_seed_px
+        info["images_seed_px"] = plan.images_seed_px
+        info["labels_scale"] = plan.scale
+    onnx_path = export_onnx(net, out / "fast_cnn.onnx", info)
+    metrics = {**info, **heldout_report(onnx_path, init_path, plan, cfg.threads, progress), "history": history}
     atomic_write_text(out / "train_metrics.json", json.dumps(metrics, indent=1))
     return metrics

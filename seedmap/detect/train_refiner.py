@@ -119,6 +119,11 @@ def train_cnn_refiner(datasets: list[str | Path], out: str | Path, cfg: CnnRefin
     the inference graph beside it (same name, ``.onnx``), both atomically. Returns the ``.onnx`` path."""
     cfg = cfg or CnnRefinerTrainConfig()
     det = CnnDetector(CnnConfig(threshold=cfg.candidates, refiner="none"), weights=weights)
+    if det.info.get("images_seed_px") and any(Path(d).suffix.lower() == ".json" for d in datasets):
+        # the samples are taken at the labels' own resolution; this network sees the images resized
+        raise InputError(f"was fine-tuned on labels of {float(det.info['images_seed_px']):.3g}-px seeds and runs on "
+                         "resized images; a refiner is trained on simulated datasets at the network's own size only "
+                         "(run the fine-tuned network without one: cnn.refiner=none)", det.path)
     t0 = time.process_time()
     x, box, seed, has = training_data(datasets, det, cfg.patch_r, progress, cfg.min_gt_area, images_root)
     if len(x) == 0:

@@ -188,3 +188,26 @@ def evaluate_detections(dataset: object, detections: dict[tuple[int, str], Detec
         rows.append(m)
         errs.append(e)
     return aggregate(rows, errs, iou_threshold, method)
+
+
+def gt_from_boxes(boxes: np.ndarray, areas: np.ndarray | None = None) -> Instances:
+    """Labelled boxes (x0, y0, x1, y1) as GT instances: keypoint = box centre (pixel-centre coordinates), area =
+    ``areas`` (else the box's)."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    n = len(b)
+    ar = np.asarray(areas, np.float64) if areas is not None else (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    return Instances(np.arange(1, n + 1, dtype=np.uint16), np.full(n, -1, np.int64), np.full(n, -1, np.int64), b,
+                     np.c_[(b[:, 0] + b[:, 2]) / 2 - 0.5, (b[:, 1] + b[:, 3]) / 2 - 0.5], ar, np.ones(n, bool))
+
+
+def evaluate_labelled(gt: list[dict], detections: dict[str, Detections], iou_threshold: float = 0.5,
+                      method: Literal["greedy", "hungarian"] = "greedy", min_gt_area: float = 0) -> DetectMetrics:
+    """Evaluate ``{image name: Detections}`` against labelled images (``seedmap.detect.labels.read_coco_boxes``
+    rows, matched by ``file_name``); per-image rows carry the image's index and its name as ``camera``."""
+    rows, errs = [], []
+    for k, g in enumerate(gt):
+        m, e = frame_metrics(detections[g["file_name"]], gt_from_boxes(g["boxes"], g["areas"]), k, g["file_name"],
+                             iou_threshold, method, min_gt_area)
+        rows.append(m)
+        errs.append(e)
+    return aggregate(rows, errs, iou_threshold, method)

@@ -173,6 +173,90 @@ add("train-fast-cnn-crop-zero", "training", _fast_cnn("--steps", "1", "--batch",
 add("train-fast-cnn-lr-nan", "training", _fast_cnn("--steps", "1", "--batch", "1", "--crop", "32", "--lr", "nan"))
 
 
+def _labelled_photos(t: Path, n: int = 3) -> tuple[Path, dict]:
+    """``t/photos``: ``n`` small PNG photos of bright 8-px seeds on a dark background, and their COCO labels."""
+    import cv2
+    import numpy as np
+
+    root = t / "photos"
+    root.mkdir()
+    images, anns = [], []
+    for i in range(n):
+        img = np.full((64, 80, 3), 40, np.uint8)
+        for j, (x, y) in enumerate(((10, 12), (40, 30), (60, 50))):
+            cv2.ellipse(img, (x + 4, y + 4), (4, 3), 0, 0, 360, (230, 220, 200), -1)
+            anns.append({"id": len(anns) + 1, "image_id": i + 1, "category_id": 1, "bbox": [x, y + 1, 9, 7],
+                         "area": 50, "iscrowd": 0})
+        cv2.imwrite(str(root / f"p{i}.png"), img)
+        images.append({"id": i + 1, "file_name": f"p{i}.png", "width": 80, "height": 64})
+    return root, {"images": images, "annotations": anns, "categories": [{"id": 1, "name": "seed"}]}
+
+
+def _fast_coco(mutate: Callable[[dict, Path], None], names: tuple[str, ...] = ()):
+    """``train fast-cnn LABELS.json --images-root photos`` with the labels (or photos) spoilt by ``mutate``."""
+
+    def build(a: Assets, t: Path) -> Setup:
+        root, coco = _labelled_photos(t)
+        mutate(coco, root)
+        f = t / "labels.json"
+        f.write_text(json.dumps(coco))
+        return Setup(["train", "fast-cnn", f, "--images-root", root, "--out", t / "out", "--steps", "1", "--batch",
+                      "1", "--crop", "32"], [f, root], t / "out", (str(f), *names))
+
+    return build
+
+
+def _set(key: str, value):  # noqa: ANN202
+    def f(c: dict, root: Path) -> None:
+        c[key] = value
+
+    return f
+
+
+def _ann0(**kw):  # noqa: ANN202
+    def f(c: dict, root: Path) -> None:
+        c["annotations"][0].update(kw)
+
+    return f
+
+
+def _only_first_image(c: dict, root: Path) -> None:
+    c["annotations"] = [a for a in c["annotations"] if a["image_id"] == 1]
+
+
+def _unknown_name(c: dict, root: Path) -> None:
+    c["images"][1]["file_name"] = "elsewhere/p1.png"
+
+
+def _truncated(c: dict, root: Path) -> None:
+    p = root / "p1.png"
+    p.write_bytes(p.read_bytes()[:60])
+
+
+def _empty_png(c: dict, root: Path) -> None:
+    (root / "p2.png").write_bytes(b"")
+
+
+add("train-fast-cnn-coco-image-not-under-root", "training", _fast_coco(_unknown_name, ("elsewhere/p1.png",)))
+add("train-fast-cnn-coco-no-annotations", "training", _fast_coco(_set("annotations", [])))
+add("train-fast-cnn-coco-bbox-outside", "training", _fast_coco(_ann0(bbox=[75, 10, 20, 8])))
+add("train-fast-cnn-coco-polygon-outside", "training",
+    _fast_coco(_ann0(segmentation=[[10, 10, 200, 10, 200, 300, 10, 300]])))
+add("train-fast-cnn-coco-one-labelled-image", "training", _fast_coco(_only_first_image))
+add("train-fast-cnn-coco-truncated-image", "training", _fast_coco(_truncated, ("p1.png",)))
+add("train-fast-cnn-coco-empty-image", "training", _fast_coco(_empty_png, ("p2.png",)))
+
+
+@case("eval-detect-coco-gt-image-not-detected", "training")
+def _(a, t):
+    root, coco = _labelled_photos(t)
+    coco["images"][0]["file_name"] = "other.png"
+    f = t / "labels.json"
+    f.write_text(json.dumps(coco))
+    det = copy_of(a.det, t / "det")
+    return Setup(["eval", "detect", f, det, "--out", t / "m.json"], [f, det], t / "m.json", (str(f), "other.png"))
+
+
 # ---- count calibration: counts CSV and results ------------------------------------------------------------------
 
 
