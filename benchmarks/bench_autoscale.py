@@ -94,7 +94,7 @@ def f1(det, item: dict, f: float) -> tuple[int, int, int]:  # noqa: ANN001 - a D
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dataset", action="append", required=True,
-                    help="simulated dataset folder or COCO labels.json (repeatable); PATH:arm = the arm network")
+                    help="simulated dataset folder or COCO labels.json (repeatable); PATH:arm / PATH:photo = that network")
     ap.add_argument("--frames", type=int, default=2, help="images per dataset")
     ap.add_argument("--factors", default=",".join(map(str, FACTORS)))
     ap.add_argument("--no-f1", action="store_true", help="estimates only (no detection runs)")
@@ -104,7 +104,7 @@ def main() -> None:
     factors = [float(x) for x in a.factors.split(",")]
     rows, band, dets = [], [], {}
     for spec in a.dataset:
-        path, _, domain = spec.partition(":") if spec.endswith(":arm") else (spec, "", "field")
+        path, _, domain = spec.rpartition(":") if spec.endswith((":arm", ":photo", ":field")) else (spec, "", "field")
         domain = domain or "field"
         p = Path(path)
         items = coco_images(p, a.frames) if p.suffix == ".json" else seedmap_images(p, a.frames)
@@ -162,7 +162,7 @@ def main() -> None:
     if band_sum:
         print("F1 at scale 1:", {k: round(v, 3) for k, v in band_sum.items()})
     # one estimate on a synthetic 18 MP image
-    first = a.dataset[0].removesuffix(":arm")
+    first = a.dataset[0].removesuffix(":arm").removesuffix(":photo").removesuffix(":field")
     p = Path(first)
     it = (coco_images(p, 1) if p.suffix == ".json" else seedmap_images(p, 1))[0]
     big = resize(it["image"], 4.0)[:3684, :4912]

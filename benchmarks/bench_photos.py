@@ -39,7 +39,7 @@ def seedmap(*args: str) -> tuple[float, float]:
     """Run ``seedmap ARGS``; return (wall s, CPU s of the child)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "seedmap", *args], check=True, cwd=ROOT,
+    subprocess.run([sys.executable, "-m", "seedmap.cli", *args], check=True, cwd=ROOT,
                    env={**os.environ, "PYTHONPATH": str(ROOT)})
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.perf_counter() - t0, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
@@ -88,7 +88,7 @@ def score(gt_coco: dict, det_coco: dict, names: list[str]) -> dict:
 def detect_and_score(folder: Path, gt: dict, names: list[str], work: Path, tag: str, *extra: str) -> dict:
     """``seedmap detect`` on ``folder`` (with ``extra`` options), scored against ``gt``; adds ms per image."""
     out = work / f"det_{tag}"
-    wall, cpu = seedmap("detect", str(folder), "--out", str(out), "--quiet", *extra)
+    wall, cpu = seedmap("detect", str(folder), "--out", str(out), *extra)
     det = json.loads((out / "detections_coco.json").read_text())
     meta = json.loads((out / "meta.json").read_text())
     s = score(gt, det, names)

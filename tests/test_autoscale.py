@@ -18,6 +18,7 @@ import pytest
 from seedmap.detect import cnn as cnn_mod
 from seedmap.detect import make_detector
 from seedmap.detect.autoscale import Level, estimate_seed_px, size_from_levels
+from seedmap.detect.cnn import network_scale_cue
 from seedmap.detect.config import min_visible_seed_px
 from seedmap.errors import ConfigError
 from seedmap.eval.detect_metrics import frame_metrics
@@ -191,3 +192,22 @@ def test_size_is_read_where_the_boxes_come_closest_when_they_never_reach_the_tar
     s = np.exp(np.log(2.0) + np.log(10 / 9) / np.log(10 / 8) * np.log(2 ** -0.5))  # boxes of 9 px at scale s
     assert size_from_levels(passing, 5.0) == pytest.approx(np.sqrt((9 / s) ** 2 - 2.25 ** 2))
     assert size_from_levels([Level(1.0, 5, 1.0, 0.7, 9.0)], 5.0) is None  # too few peaks anywhere
+
+
+def test_the_photo_network_reads_a_grain_photos_seed_size_off_its_scores():
+    from seedmap.detect.autoscale import estimate_seed_px
+    from seedmap.sim.photos.compose import render_photo
+
+    det = make_detector("fast", overrides=["cnn.domain=photo"])
+    assert network_scale_cue(det.path, det.info) == "score"
+    errs = []
+    for seed in (1, 2, 4, 5, 6):
+        ph = render_photo(np.random.default_rng(seed), "train", (640, 640), (16.0, 24.0), 0.0)
+        sides = [np.sqrt((np.ptp(xs) + 1) * (np.ptp(ys) + 1)) for xs, ys in
+                 ((np.nonzero(ph.ids == k)[1], np.nonzero(ph.ids == k)[0]) for k in ph.seeds)]
+        true = float(np.median(sides))
+        est = estimate_seed_px(det.peaks, ph.image, det.trained_seed_px, "score").seed_px
+        errs.append(abs(est / true - 1))
+    assert np.median(errs) < 0.15, errs
+    with pytest.raises(ValueError, match="cue"):
+        estimate_seed_px(det.peaks, ph.image, det.trained_seed_px, "colour")

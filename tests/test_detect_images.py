@@ -94,6 +94,23 @@ def test_detect_on_a_folder_keeps_the_file_names_one_coco_image_per_photo(photos
     assert rec["boxes"] == recs[1]["boxes"] and rec["image"] == "IMG_10.png"
 
 
+def test_photos_run_the_photo_network_on_the_whole_image_unless_told_otherwise(photos, tmp_path, monkeypatch):
+    import yaml
+
+    out = tmp_path / "det"
+    assert run_cli(["detect", photos / "IMG_10.png", "--out", out], monkeypatch) == 0
+    cnn = yaml.safe_load((out / "config.yaml").read_text())["cnn"]
+    assert cnn["domain"] == "photo" and cnn["tile"] == 0
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["scale_source"] == "auto" and meta["seed_px_estimate"] > 0
+    field = tmp_path / "field"
+    assert run_cli(["detect", photos / "IMG_10.png", "--out", field, "--set", "cnn.domain=field"], monkeypatch) == 0
+    cnn = yaml.safe_load((field / "config.yaml").read_text())["cnn"]
+    assert cnn["domain"] == "field" and cnn["tile"] == 0
+    n_photo = len(json.loads((out / "detections_coco.json").read_text())["annotations"])
+    assert n_photo > 50  # the photo network finds the simulated range's seeds too
+
+
 @pytest.mark.parametrize("case", ["gt", "corrupt", "empty-folder", "text-file"])
 def test_bad_photo_inputs_are_one_line_and_write_nothing(case, photos, tmp_path, monkeypatch, capsys):
     path, det, needle = photos, "fast", None

@@ -95,6 +95,7 @@ def test_boxes_only_fine_tune_learns_at_the_network_seed_size_and_reports_heldou
 
     info = json.loads({p.key: p.value for p in onnx.load(str(out / "fast_cnn.onnx")).metadata_props}["info"])
     assert info["seed_px"] == 5.0 and info["images_seed_px"] == pytest.approx(want)
+    assert info["scale_cue"] == "score"  # read off the ladder as the shipped photo network it started from is
     # a refiner for the resized network is not trained from the labels at their own size: one line, nothing written
     ref = tmp_path / "ref"
     assert run_cli(["train", "cnn-refiner", labels, "--images-root", tmp_path / "set" / "images", "--weights",
@@ -197,3 +198,27 @@ def test_each_photo_is_resized_by_its_own_seed_size(tmp_path):
     sides = np.concatenate([[(10, 20, 40)[k]] * (5 if k < 2 else 2) for k in plan.train[str(p)]])
     assert plan.images_seed_px == np.median(sides) and plan.scale == pytest.approx(5.0 / np.median(sides))
     assert plan.image_scales == {(str(p), 0): 0.5, (str(p), 1): 0.25}
+
+
+def _sized_labels(tmp_path, sizes: list[float]) -> "Path":
+    """A COCO file of one 120 x 120 image per size in ``sizes``, each with six square seeds of that side."""
+    coco = {"images": [], "annotations": [], "categories": [{"id": 1, "name": "seed"}]}
+    for i, side in enumerate(sizes, 1):
+        cv2.imwrite(str(tmp_path / f"im{i}.png"), np.zeros((120, 120, 3), np.uint8))
+        coco["images"].append({"id": i, "file_name": f"im{i}.png", "width": 120, "height": 120})
+        for k in range(6):
+            coco["annotations"].append({"id": len(coco["annotations"]) + 1, "image_id": i, "category_id": 1,
+                                        "bbox": [2 + k * 19, 2 + (k % 2) * 40, side, side]})
+    p = tmp_path / "labels.json"
+    p.write_text(json.dumps(coco))
+    return p
+
+
+@pytest.mark.parametrize("sizes,fixed", [([10, 11, 10], True), ([8, 16, 12], False)])
+def test_labels_of_one_seed_size_fix_the_scale_several_sizes_leave_it_to_the_estimate(tmp_path, sizes, fixed):
+    from seedmap.detect.train_validate import plan_training
+
+    plan = plan_training([_sized_labels(tmp_path, sizes)], None, None, 0.34, 0, 5.0)
+    assert plan.fixed_scale is fixed
+    # every photo with enough labels trains at the network's seed size, whatever the run records
+    assert sorted(plan.image_scales.values()) == pytest.approx(sorted(5.0 / s for s in sizes))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 from typing import List, Optional
 
@@ -37,6 +38,10 @@ def detect_cmd(
     from seedmap.io.photos import is_photo_input
 
     cfg = load_config(DetectRunConfig, config, set_ or [])
+    if is_photo_input(dataset, cfg.dataset.format):  # images: the photo network unless --config/--set say otherwise
+        from seedmap.detect.config import PHOTO_DEFAULTS
+
+        cfg = load_config(DetectRunConfig, config, set_ or [], base=copy.deepcopy(PHOTO_DEFAULTS))
     detector = detector or cfg.detector or "default"  # a result's config.yaml records what ran
     if weights is None and cfg.weights and detector == cfg.detector:
         weights = Path(cfg.weights)

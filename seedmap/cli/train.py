@@ -14,7 +14,7 @@ from seedmap.errors import SeedmapError
 from seedmap.outputs import check_output_file, check_resume_dir, is_seedmap_json, mark
 
 #: ``train fast-cnn --init`` default: the network a fine-tune starts from (a shipped file name or a path)
-DEFAULT_INIT = "fast_cnn.onnx"
+DEFAULT_INIT = "fast_cnn_photo.onnx"
 #: ``train fast-cnn --steps`` default (a fine-tune; the shipped networks were trained 5000 steps from scratch)
 DEFAULT_STEPS = 1500
 #: ``train fast-cnn --lr`` default
@@ -229,7 +229,7 @@ def train_fast_cnn_cmd(
                                                       "simulate panicle) when ranges are given too (default: "
                                                       "every image alike)."),
     init: str = typer.Option(DEFAULT_INIT, "--init", help="Start from these fast_cnn .onnx weights (fine-tuning; "
-                                                           "default: the shipped field network); none = a random "
+                                                           "default: the shipped photo network); none = a random "
                                                            "initialisation (training from scratch)."),
     lr: float = typer.Option(DEFAULT_LR, "--lr", help="Adam learning rate (cosine decay to 3 % over the steps)."),
     val_fraction: float = typer.Option(0.2, "--val-fraction",
@@ -239,11 +239,11 @@ def train_fast_cnn_cmd(
 ) -> None:
     """Train the fast detector's CNN (CenterNet-style heatmap + box; torch on CPU) and export it to ONNX.
 
-    By default it fine-tunes the shipped field network. On your own labelled images (COCO boxes, polygons or RLE
+    By default it fine-tunes the shipped photo network. On your own labelled images (COCO boxes, polygons or RLE
     masks): LABELS.json --images-root DIR; the images are resized so that the labelled seeds have the network's
     seed size, the held-out images' box F1 before and after is printed, and `seedmap detect --weights
-    OUT/fast_cnn.onnx` runs the network at that scale. The shipped networks were trained with --init none --steps
-    5000 on data/det_s1 and det_s31-35, --val data/det_s36."""
+    OUT/fast_cnn.onnx` runs the network at that scale. The shipped networks were trained with --init none
+    (recipes: docs/method/detection.md)."""
     from seedmap.detect.learned import require_torch
 
     require_torch()

@@ -46,12 +46,26 @@ BATCH = 32
 GREEN_K = 15.0 / 16.0
 
 
+#: the shipped network of each ``cnn.domain``
+SHIPPED_NETWORKS = {"field": "fast_cnn.onnx", "arm": "fast_cnn_arm.onnx", "photo": "fast_cnn_photo.onnx"}
+#: the seed-size cue of a shipped network (seedmap.detect.autoscale.CUES); a trained network records its own
+#: (``info["scale_cue"]``: its starting network's), else ``boxes``
+SHIPPED_CUES = {"fast_cnn_photo.onnx": "score"}
+
+
+def network_scale_cue(path: str | Path, info: dict) -> str:
+    """The seed-size cue of the network at ``path`` whose ONNX info is ``info``."""
+    shipped = Path(path).resolve().parent == WEIGHTS_DIR.resolve()
+    return str(info.get("scale_cue") or (SHIPPED_CUES.get(Path(path).name) if shipped else None) or "boxes")
+
+
 def default_cnn_path(domain: str = "field") -> Path:
     """The shipped network of ``domain`` (``cnn.domain``): ``field`` = fast_cnn.onnx (trained on simulated row
-    ranges), ``arm`` = fast_cnn_arm.onnx (trained on ranges + close-up arm scans of panicles)."""
-    if domain not in ("field", "arm"):
-        raise ConfigError(f"cnn.domain must be field or arm, got {domain!r}")
-    return WEIGHTS_DIR / ("fast_cnn.onnx" if domain == "field" else "fast_cnn_arm.onnx")
+    ranges), ``arm`` = fast_cnn_arm.onnx (ranges + close-up arm scans of panicles), ``photo`` = fast_cnn_photo.onnx
+    (ranges + simulated grain photos: loose grain, piles and panicles on varied backgrounds and light)."""
+    if domain not in SHIPPED_NETWORKS:
+        raise ConfigError(f"cnn.domain must be one of {', '.join(SHIPPED_NETWORKS)}, got {domain!r}")
+    return WEIGHTS_DIR / SHIPPED_NETWORKS[domain]
 
 
 def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
@@ -226,7 +240,8 @@ class CnnDetector(Detector):
     def ensure_scale(self, image: np.ndarray) -> float:
         """The input scale, estimated from RGB ``image`` first when it is not known yet (``auto``)."""
         if self.scale is None:
-            self.seed_px_estimate = estimate_seed_px(self.peaks, check_image(image), self.trained_seed_px).seed_px
+            self.seed_px_estimate = estimate_seed_px(self.peaks, check_image(image), self.trained_seed_px,
+                                                     network_scale_cue(self.path, self.info)).seed_px
             self.scale = auto_scale(self.seed_px_estimate, self.trained_seed_px)
         return self.scale
 

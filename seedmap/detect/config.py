@@ -35,8 +35,13 @@ class GtConfig(ConfigModel):
 
 
 #: typical seed diameter (px, median geometric mean of the GT box sides of detectable seeds) the shipped networks were
-#: trained on: field ranges at 1434x1050 (measured 5.0); arm scans show seeds of about twice the area
-TRAINED_SEED_PX = {"field": 5.0, "arm": 7.0}
+#: trained on: field ranges at 1434x1050 (measured 5.0); arm scans show seeds of about twice the area; the photo network
+#: was trained on ranges and on grain photos each resized so that its seeds measure 5.0 px
+TRAINED_SEED_PX = {"field": 5.0, "arm": 7.0, "photo": 5.0}
+
+#: what ``seedmap detect`` uses on image files and folders: the photo network on the whole image in one pass (a photo
+#: resized to its seeds' scale is small, and the tile gate's brightness test would skip dark seeds on a light surface)
+PHOTO_DEFAULTS = {"cnn": {"domain": "photo", "tile": 0}}
 
 #: the fast CNN's heatmap peak threshold without a refiner (both shipped networks)
 CNN_THRESHOLD = 0.45
@@ -48,9 +53,10 @@ class CnnConfig(ConfigModel):
     #: ONNX weights; None = the shipped network of ``domain``; a bare file name that is no file in the working
     #: directory names a file in seedmap/detect/weights/
     weights: str | None = None
-    #: shipped network for ``weights = None``: ``field`` (fast_cnn.onnx, row ranges) or ``arm`` (fast_cnn_arm.onnx,
-    #: close-up arm scans; the panicle reconstruction sets it)
-    domain: Literal["field", "arm"] = "field"
+    #: shipped network for ``weights = None``: ``field`` (fast_cnn.onnx, row ranges), ``arm`` (fast_cnn_arm.onnx,
+    #: close-up arm scans; the panicle reconstruction sets it) or ``photo`` (fast_cnn_photo.onnx, grain photos and
+    #: scans; ``seedmap detect`` sets it for images)
+    domain: Literal["field", "arm", "photo"] = "field"
     #: seed probability a heatmap peak needs when no refiner runs
     threshold: float = CNN_THRESHOLD
     #: tile side (px, even) the gated network runs on; 0 = the whole image in one pass

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seedmap.detect.cnn import network_scale_cue
 from seedmap.detect.cnn_targets import TrainImage, coco_image_targets, image_targets, is_coco_file, pad_to
 from seedmap.detect.labels import CocoSource
 from seedmap.errors import InputError
@@ -558,11 +559,19 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
             "cpu_s": prev_cpu + time.process_time() - t_cpu0,
             "wall_s_this_run": time.perf_counter() - t_wall0,
             "final": history[-1] if history else None}
+    if init_path:  # a fine-tuned network reads its seed size off the ladder as its starting network does
+        from seedmap.detect.runtime import load_session
+
+        init_info = json.loads(load_session(init_path).get_modelmeta().custom_metadata_map.get("info", "{}"))
+        info["scale_cue"] = network_scale_cue(init_path, init_info)
     if plan.images_seed_px is not None:
-        # the network expects seeds of seed_px in its input; the user's images show them at images_seed_px
+        # the network expects seeds of seed_px in its input; the user's images show them at images_seed_px (one
+        # size: the network runs at that fixed scale) or at several (it estimates each image's scale)
         info["seed_px"] = net_seed_px
-        info["images_seed_px"] = plan.images_seed_px
-        info["labels_scale"] = plan.scale
+        info["labels_seed_px"] = plan.images_seed_px
+        if plan.fixed_scale:
+            info["images_seed_px"] = plan.images_seed_px
+            info["labels_scale"] = plan.scale
     onnx_path = export_onnx(net, out / "fast_cnn.onnx", info)
     metrics = {**info, **heldout_report(onnx_path, init_path, plan, cfg.threads, progress), "history": history}
     atomic_write_text(out / "train_metrics.json", json.dumps(metrics, indent=1))

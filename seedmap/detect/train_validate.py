@@ -63,9 +63,9 @@ def heldout_f1(weights: str | Path, heldout: list[HeldOut], images_seed_px: floa
     """Box precision, recall and F1 of the network ``weights`` on the held-out images (module docstring), pooled
     over all of them: ``{"precision", "recall", "f1", "tp", "n_det", "n_gt", "images", "threshold"}`` (None without
     held-out images). COCO images run at ``network seed size / images_seed_px`` (the scale the trained network
-    stores); simulated frames at their own size."""
+    stores), or, without it, at the scale estimated on each image; simulated frames at their own size."""
     from seedmap.detect.cnn import CnnDetector
-    from seedmap.detect.config import CnnConfig, min_visible_seed_px
+    from seedmap.detect.config import PHOTO_DEFAULTS, CnnConfig, min_visible_seed_px
     from seedmap.eval.detect_metrics import frame_metrics, match_boxes, prf
 
     if not heldout:
@@ -74,11 +74,15 @@ def heldout_f1(weights: str | Path, heldout: list[HeldOut], images_seed_px: floa
     thr = None
     for h in heldout:
         coco = h.coco is not None
-        cfg = CnnConfig(refiner="none", threads=threads, seed_px=images_seed_px if coco else None)
+        # COCO images run as `seedmap detect` runs photos (PHOTO_DEFAULTS: the whole image in one pass)
+        cfg = CnnConfig(refiner="none", threads=threads, seed_px=images_seed_px if coco else None,
+                        tile=PHOTO_DEFAULTS["cnn"]["tile"] if coco else CnnConfig().tile)
         det = CnnDetector(cfg, weights)
         thr = det.threshold
         items = _coco_items(h.coco, h.indices) if coco else _sim_items(h.dataset, h.indices)
         for img, boxes, inst in items:
+            if coco and images_seed_px is None:
+                det.reset_scale()  # photos of several seed sizes: each one's own estimate, as seedmap detect does
             d = det.detect(img)
             n_img += 1
             if inst is None:
@@ -130,8 +134,13 @@ class TrainPlan:
     #: ... or, an image with at least PER_IMAGE_MIN_SEEDS labels, by network seed size / its own median seed size:
     #: ``{(str(source), image index): factor}`` (photos of seeds at several sizes all train at the network's size)
     image_scales: dict | None = None
+    #: the labelled images show seeds of one size (per-image medians within SIZE_SPREAD): the trained network
+    #: records images_seed_px and runs at that fixed scale; else it estimates every image's scale (cnn.scale=auto)
+    fixed_scale: bool = True
 
 
+#: largest ratio between the per-image median seed sizes of labels that still count as one seed size
+SIZE_SPREAD = 1.5
 #: labelled seeds an image needs to be resized by its own median seed size (fewer: the median of all labels)
 PER_IMAGE_MIN_SEEDS = 5
 
@@ -195,7 +204,9 @@ def plan_training(train_sets: list, val_sets: list | None, images_root, val_frac
         if f > 4.0:
             raise InputError(f"image {k}: its labelled seeds are {per_image[(d, k)]:.2g} px (median box side); the "
                              f"network needs seeds of at least {net_seed_px / 4.0:g} px", d)
-    return TrainPlan(tr, None if val_sets else va, heldout, images_seed_px, scale, scales)
+    sizes = list(per_image.values())
+    fixed = not sizes or max(sizes) <= SIZE_SPREAD * min(sizes)
+    return TrainPlan(tr, None if val_sets else va, heldout, images_seed_px, scale, scales, fixed)
 
 
 def heldout_report(weights: Path, init: str | Path | None, plan: TrainPlan, threads: int = 1,
@@ -207,7 +218,7 @@ def heldout_report(weights: Path, init: str | Path | None, plan: TrainPlan, thre
     out: dict = {}
     runs = [("", weights)] + ([("_before", init)] if init else [])
     for suffix, w in track(runs, "held-out F1", "network", enabled=progress):
-        r = heldout_f1(w, plan.heldout, plan.images_seed_px, threads)
+        r = heldout_f1(w, plan.heldout, plan.images_seed_px if plan.fixed_scale else None, threads)
         if r is None:
             continue
         out.update({f"val_f1{suffix}": r["f1"], f"val_precision{suffix}": r["precision"],
