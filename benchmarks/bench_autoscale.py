@@ -31,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seedmap.detect.autoscale import estimate_seed_px  # noqa: E402
 from seedmap.detect.base import make_detector  # noqa: E402
+from seedmap.detect.cnn import network_scale_cue  # noqa: E402
 from seedmap.detect.config import min_visible_seed_px  # noqa: E402
 from seedmap.eval.detect_metrics import frame_metrics, prf  # noqa: E402
 
@@ -102,14 +103,16 @@ def main() -> None:
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "autoscale.json"))
     a = ap.parse_args()
     factors = [float(x) for x in a.factors.split(",")]
-    rows, band, dets = [], [], {}
+    rows, band, dets, extra = [], [], {}, {}
     for spec in a.dataset:
         path, _, domain = spec.rpartition(":") if spec.endswith((":arm", ":photo", ":field")) else (spec, "", "field")
         domain = domain or "field"
         p = Path(path)
         items = coco_images(p, a.frames) if p.suffix == ".json" else seedmap_images(p, a.frames)
         if domain not in dets:
-            dets[domain] = make_detector("fast", overrides=[f"cnn.domain={domain}"])
+            # photos run as `seedmap detect` runs them (PHOTO_DEFAULTS: the whole image in one pass)
+            extra[domain] = ["cnn.tile=0"] if domain == "photo" else []
+            dets[domain] = make_detector("fast", overrides=[f"cnn.domain={domain}", *extra[domain]])
         det = dets[domain]
         for it in items:
             if it["true"] is None:
@@ -118,7 +121,7 @@ def main() -> None:
                 img = resize(it["image"], f)
                 true = it["true"] * f
                 t0 = time.perf_counter()
-                est = estimate_seed_px(det.peaks, img, det.trained_seed_px).seed_px
+                est = estimate_seed_px(det.peaks, img, det.trained_seed_px, network_scale_cue(det.path, det.info)).seed_px
                 dt = time.perf_counter() - t0
                 row = {"dataset": str(p), "domain": domain, "image": it["name"], "factor": f,
                        "width": img.shape[1], "height": img.shape[0], "true_seed_px": true, "est_seed_px": est,
@@ -127,7 +130,8 @@ def main() -> None:
                     det.reset_scale()
                     row["auto_scale"] = det.ensure_scale(img)
                     row["auto"] = f1(det.detect(img), it, f)
-                    forced = make_detector("fast", overrides=[f"cnn.domain={domain}", f"cnn.seed_px={true}"]) \
+                    opts = [f"cnn.domain={domain}", f"cnn.seed_px={true}", *extra[domain]]
+                    forced = make_detector("fast", overrides=opts) \
                         if det.trained_seed_px / true <= 4 else None
                     row["true_scale"] = None if forced is None else forced.scale
                     row["forced"] = None if forced is None else f1(forced.detect(img), it, f)
@@ -138,7 +142,7 @@ def main() -> None:
                       + ("" if a.no_f1 else f" F1 auto {prf(*row['auto'])[2]:.3f} forced "
                          f"{'-' if row['forced'] is None else round(prf(*row['forced'])[2], 3)}"), flush=True)
             if a.band:
-                d1 = make_detector("fast", overrides=[f"cnn.domain={domain}", "cnn.scale=1"])
+                d1 = make_detector("fast", overrides=[f"cnn.domain={domain}", "cnn.scale=1", *extra[domain]])
                 for f in BAND_FACTORS:
                     band.append({"dataset": str(p), "domain": domain, "image": it["name"], "factor": f,
                                  "seed_px": it["true"] * f, "scale1": f1(d1.detect(resize(it["image"], f)), it, f)})
@@ -168,7 +172,7 @@ def main() -> None:
     big = resize(it["image"], 4.0)[:3684, :4912]
     det = next(iter(dets.values()))
     t0 = time.perf_counter()
-    est = estimate_seed_px(det.peaks, big, det.trained_seed_px).seed_px
+    est = estimate_seed_px(det.peaks, big, det.trained_seed_px, network_scale_cue(det.path, det.info)).seed_px
     big_t = {"width": big.shape[1], "height": big.shape[0], "estimate_s": time.perf_counter() - t0,
              "true_seed_px": it["true"] * 4.0, "est_seed_px": est}
     print("18 MP:", big_t)
