@@ -224,20 +224,25 @@ def _check_coco_annotation(a, sizes: dict, cats: dict, p: Path) -> None:
                              f"{a['image_id']}", p)
 
 
+def read_coco_json(p: Path) -> dict:
+    """The parsed COCO file ``p``: a dict with ``images`` and ``annotations`` (else one-line InputError)."""
+    if not p.is_file():
+        raise InputError("COCO label file not found", p)
+    try:
+        d = json.loads(read_text(p, "COCO label file"))
+    except json.JSONDecodeError as e:
+        raise InputError(f"not valid JSON ({e.msg} at line {e.lineno})", p) from None
+    if not isinstance(d, dict) or "images" not in d or "annotations" not in d:
+        raise InputError("not a COCO file (needs 'images' and 'annotations')", p)
+    return d
+
 class CocoSource:
     """Images + instance masks from a COCO JSON file (one category or all categories as 'seed')."""
 
     def __init__(self, json_path: str | Path, images_root: str | Path | None = None,
                  category: str | None = None) -> None:
         p = Path(json_path)
-        if not p.is_file():
-            raise InputError("COCO annotation file not found", p)
-        try:
-            d = json.loads(read_text(p, "COCO annotation file"))
-        except json.JSONDecodeError as e:
-            raise InputError(f"not valid JSON ({e.msg} at line {e.lineno})", p) from None
-        if not isinstance(d, dict) or "images" not in d or "annotations" not in d:
-            raise InputError("not a COCO file (needs 'images' and 'annotations')", p)
+        d = read_coco_json(p)
         self.path = p
         self.root = Path(images_root) if images_root else p.parent
         cats = {c["id"]: c.get("name", "") for c in d.get("categories", [])}
@@ -366,14 +371,7 @@ def read_coco_boxes(path: str | Path) -> list[dict]:
     Checked as for training (:class:`CocoSource`) except that the image files need not exist; no annotation at all
     is an error."""
     p = Path(path)
-    if not p.is_file():
-        raise InputError("COCO label file not found", p)
-    try:
-        d = json.loads(read_text(p, "COCO label file"))
-    except json.JSONDecodeError as e:
-        raise InputError(f"not valid JSON ({e.msg} at line {e.lineno})", p) from None
-    if not isinstance(d, dict) or "images" not in d or "annotations" not in d:
-        raise InputError("not a COCO file (needs 'images' and 'annotations')", p)
+    d = read_coco_json(p)
     images = d["images"]
     if not isinstance(images, list) or not images:
         raise InputError("COCO 'images' is empty (nothing to evaluate)", p)
