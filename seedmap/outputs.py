@@ -30,7 +30,8 @@ from seedmap.io.atomic import WriteError, atomic_write_text
 #: name of the marker file written into every output folder
 MARKER = ".seedmap-output.json"
 
-#: kinds of output folders and the files that made older seedmap versions' folders of that kind recognisable
+#: kinds of output folders and the files that made older seedmap versions' folders of that kind recognisable (kinds
+#: newer than the marker, such as ``photos``, are recognised by their marker only)
 LEGACY_FILES: dict[str, tuple[str, ...]] = {
     "panicle-scan": ("calib.yaml", "arm.yaml", "gt/scan.yaml"),
     "slam": ("config.yaml", "metrics.json", "trajectory.tum"),
@@ -38,7 +39,6 @@ LEGACY_FILES: dict[str, tuple[str, ...]] = {
     "reconstruct": ("config.yaml", "metrics.json", "seeds.csv"),
     "count": ("count.json",),
     "dataset": ("calib.yaml", "times.txt", "gt/config.yaml"),
-    "photos": (),
     "benchmark": ("config.yaml", "results.csv"),
     "tune": ("config.yaml", "tune.json"),
     "batch": ("summary.md", "summary.json"),
