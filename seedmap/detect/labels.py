@@ -163,20 +163,21 @@ def segmentation_mask(seg: object, h: int, w: int) -> np.ndarray:
     raise ValueError("segmentation must be a polygon list or an RLE dict")
 
 
-def _check_coco_images(images, root: Path, p: Path) -> dict:
-    """COCO ``images``: ids unique, files present under ``root`` -> {id: (width, height) or None}.
+def _check_coco_images(images, root: Path | None, p: Path, purpose: str = "train on") -> dict:
+    """COCO ``images``: ids unique, files present under ``root`` (None: not checked) -> {id: (width, height) or
+    None}.
 
     Checked before a training run starts, so a bad file is one line naming it and leaves no run folder
     (a missing image used to be found at the first batch, after the run folder was written)."""
     if not isinstance(images, list) or not images:
-        raise InputError("COCO 'images' is empty (nothing to train on)", p)
+        raise InputError(f"COCO 'images' is empty (nothing to {purpose})", p)
     sizes: dict = {}
     for k, im in enumerate(images):
         if not isinstance(im, dict) or "id" not in im or "file_name" not in im:
             raise InputError(f"images[{k}] needs 'id' and 'file_name'", p)
         if im["id"] in sizes:
             raise InputError(f"image id {im['id']} appears twice", p)
-        if not (root / im["file_name"]).is_file():
+        if root is not None and not (root / im["file_name"]).is_file():
             raise InputError(f"image {im['file_name']!r} (id {im['id']}) not found under {root} "
                              "(--images-root names the image folder)", p)
         wh = (im.get("width"), im.get("height"))
@@ -373,16 +374,7 @@ def read_coco_boxes(path: str | Path) -> list[dict]:
     p = Path(path)
     d = read_coco_json(p)
     images = d["images"]
-    if not isinstance(images, list) or not images:
-        raise InputError("COCO 'images' is empty (nothing to evaluate)", p)
-    sizes: dict = {}
-    for k, im in enumerate(images):
-        if not isinstance(im, dict) or "id" not in im or "file_name" not in im:
-            raise InputError(f"images[{k}] needs 'id' and 'file_name'", p)
-        if im["id"] in sizes:
-            raise InputError(f"image id {im['id']} appears twice", p)
-        wh = (im.get("width"), im.get("height"))
-        sizes[im["id"]] = wh if all(isinstance(v, (int, float)) and v > 0 for v in wh) else None
+    sizes = _check_coco_images(images, None, p, "evaluate")
     cats = {c["id"]: c.get("name", "") for c in d.get("categories", []) if isinstance(c, dict) and "id" in c}
     anns = d["annotations"] if isinstance(d["annotations"], list) else []
     if not anns:
