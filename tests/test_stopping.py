@@ -36,7 +36,7 @@ def _static_dataset(root: Path, n: int = 6) -> Path:
 
 @pytest.mark.parametrize("sig, code, said", [(signal.SIGINT, 130, "interrupted"), (signal.SIGTERM, 143, "terminated")],
                          ids=["ctrl-c", "sigterm"])
-def test_a_stopped_command_says_one_line_and_leaves_nothing(sig, code, said, tmp_path, monkeypatch, capfd):
+def test_a_stopped_command_says_one_line_and_leaves_nothing(sig, code, said, tmp_path, monkeypatch, capfd, request):
     import seedmap.io.seedmap_dataset as sd
 
     ds = _static_dataset(tmp_path / "ds")
@@ -51,6 +51,9 @@ def test_a_stopped_command_says_one_line_and_leaves_nothing(sig, code, said, tmp
         return real_read(path)
 
     monkeypatch.setattr(sd, "read_rgb", read_then_signal)
+    # a shell starts background jobs with SIGINT ignored (nohup, `&`); Ctrl-C in a terminal reaches Python's handler
+    old_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, old_int))
     old_term = signal.getsignal(signal.SIGTERM)
     capfd.readouterr()
     assert run_cli(["slam", ds, "--matcher", "orb", "--out", out, "-q"], monkeypatch) == code
