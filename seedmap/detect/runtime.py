@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 from seedmap.errors import InputError
@@ -43,3 +44,14 @@ def load_session(path: str | Path, threads: int = 0, kind: str = "fast_cnn"):  #
     if meta.get("seedmap_kind") != kind:
         raise InputError(f"holds {meta.get('seedmap_kind') or 'unknown'} weights, expected {kind}", p)
     return sess
+
+
+def network_info(path: str | Path) -> dict:
+    """The ``info`` metadata of a seedmap fast_cnn ONNX file (what training recorded; ``{}`` when it has none or it
+    is not a JSON object)."""
+    meta = load_session(path, 1).get_modelmeta().custom_metadata_map
+    try:
+        info = json.loads(meta.get("info", "{}"))
+    except ValueError:
+        return {}
+    return info if isinstance(info, dict) else {}

@@ -560,10 +560,9 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
             "wall_s_this_run": time.perf_counter() - t_wall0,
             "final": history[-1] if history else None}
     if init_path:  # a fine-tuned network reads its seed size off the ladder as its starting network does
-        from seedmap.detect.runtime import load_session
+        from seedmap.detect.runtime import network_info
 
-        init_info = json.loads(load_session(init_path).get_modelmeta().custom_metadata_map.get("info", "{}"))
-        info["scale_cue"] = network_scale_cue(init_path, init_info)
+        info["scale_cue"] = network_scale_cue(init_path, network_info(init_path))
     if plan.images_seed_px is not None:
         # the network expects seeds of seed_px in its input; the user's images show them at images_seed_px (one
         # size: the network runs at that fixed scale) or at several (it estimates each image's scale)

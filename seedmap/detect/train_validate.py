@@ -99,9 +99,7 @@ def heldout_f1(weights: str | Path, heldout: list[HeldOut], images_seed_px: floa
 def network_seed_px(weights: str | Path | None, default: float) -> float:
     """The seed size (px) a fast_cnn ONNX file says its network expects in its input (``info["seed_px"]``), else
     ``default`` (the shipped networks' training size)."""
-    import json
-
-    from seedmap.detect.runtime import load_session
+    from seedmap.detect.runtime import network_info
 
     if weights is None:
         return float(default)
@@ -109,12 +107,8 @@ def network_seed_px(weights: str | Path | None, default: float) -> float:
 
     if Path(weights).name == "fast_cnn_arm.onnx":  # the shipped arm network (no seed_px recorded)
         default = TRAINED_SEED_PX["arm"]
-    meta = load_session(weights, 1).get_modelmeta().custom_metadata_map
-    try:
-        info = json.loads(meta.get("info", "{}"))
-    except ValueError:
-        info = {}
-    v = info.get("seed_px") if isinstance(info, dict) else None
+    info = network_info(weights)
+    v = info.get("seed_px")
     return float(v) if isinstance(v, (int, float)) and v > 0 else float(default)
 
 
