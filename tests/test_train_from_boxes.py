@@ -63,17 +63,25 @@ def test_fine_tuning_from_boxes_lowers_the_loss_and_detect_runs_the_network(tiny
     assert meta["images"] == len(list((tiny_range / "left").glob("*.png"))) and meta["detections"] > 0
 
 
-def test_one_labelled_image_and_no_validation_set_is_one_line(tiny_range, tmp_path, monkeypatch, capsys):
-    pytest.importorskip("torch")
-    coco, _ = export_coco(tiny_range, frames=(0,))
+def _refused_training(coco: dict, images_root, tmp_path, monkeypatch, capsys) -> tuple:  # noqa: ANN001
+    """``seedmap train fast-cnn`` on the labels ``coco``: it must exit 2 with one error line and write no folder.
+    Returns the label file and that line."""
     p = tmp_path / "labels.json"
     p.write_text(json.dumps(coco))
     out = tmp_path / "fc"
-    assert run_cli(["train", "fast-cnn", p, "--images-root", tiny_range, "--out", out, "--steps", "1"],
+    assert run_cli(["train", "fast-cnn", p, "--images-root", images_root, "--out", out, "--steps", "1"],
                    monkeypatch) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
-    assert len(err) == 1 and str(p) in err[0] and "held-out" in err[0], err
+    assert len(err) == 1, err
     assert not out.exists()
+    return p, err[0]
+
+
+def test_one_labelled_image_and_no_validation_set_is_one_line(tiny_range, tmp_path, monkeypatch, capsys):
+    pytest.importorskip("torch")
+    coco, _ = export_coco(tiny_range, frames=(0,))
+    p, err = _refused_training(coco, tiny_range, tmp_path, monkeypatch, capsys)
+    assert str(p) in err and "held-out" in err, err
 
 
 def test_labels_made_on_a_resized_copy_are_one_line(tiny_range, tmp_path, monkeypatch, capsys):
@@ -81,11 +89,5 @@ def test_labels_made_on_a_resized_copy_are_one_line(tiny_range, tmp_path, monkey
     coco, _ = export_coco(tiny_range, frames=(0, 1))
     coco["images"][0]["width"] *= 2  # the labelling tool saw another size
     coco["images"][0]["height"] *= 2
-    p = tmp_path / "labels.json"
-    p.write_text(json.dumps(coco))
-    out = tmp_path / "fc"
-    assert run_cli(["train", "fast-cnn", p, "--images-root", tiny_range, "--out", out, "--steps", "1"],
-                   monkeypatch) == 2
-    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("error: ")]
-    assert len(err) == 1 and str(p) in err[0] and "000000.png" in err[0] and "labels say" in err[0], err
-    assert not out.exists()
+    p, err = _refused_training(coco, tiny_range, tmp_path, monkeypatch, capsys)
+    assert str(p) in err and "000000.png" in err and "labels say" in err, err
