@@ -134,8 +134,9 @@ def _frame(t: Thing, h: int, w: int) -> tuple | None:
     return y0, y1, x0, x1, (dx * c + dy * s) / t.a, (-dx * s + dy * c) / t.b
 
 
-def _profile(t: Thing, u: np.ndarray, v: np.ndarray, rng: Rng | None) -> tuple[np.ndarray, np.ndarray]:
-    """``(rr, edge_px)``: normalised radius (< 1 inside) and the distance to the outline in px (antialiasing)."""
+def _profile(t: Thing, u: np.ndarray, v: np.ndarray, wobble: bool) -> tuple[np.ndarray, np.ndarray]:
+    """``(rr, edge_px)``: normalised radius (< 1 inside) and the distance to the outline in px (antialiasing);
+    ``wobble``: a chaff flake gets its irregular outline (shadow footprints keep the plain ellipse)."""
     if t.shape == "lens":
         half = np.clip(1 - u * u, 1e-3, None)
         rr = np.where(np.abs(u) < 1, (v / half) ** 2, 2.0)
@@ -144,7 +145,7 @@ def _profile(t: Thing, u: np.ndarray, v: np.ndarray, rng: Rng | None) -> tuple[n
         rr = np.maximum(u ** 8, v * v)
         return rr, np.minimum((1 - np.abs(u)) * t.a, (1 - np.abs(v)) * t.b)
     rr = u * u + v * v
-    if t.shape == "flake" and rng is not None:
+    if t.shape == "flake" and wobble:
         wob = noise(np.random.default_rng(t.tex_seed), *u.shape, max(2.0, t.b * 0.6))
         rr = rr * (0.75 + 0.5 * wob)
     return rr, (1 - np.sqrt(np.clip(rr, 0, 4))) * t.b
@@ -183,7 +184,7 @@ def draw(t: Thing, img: np.ndarray, ids: np.ndarray, ident: int, light: Light, f
     if fr is None:
         return
     y0, y1, x0, x1, u, v = fr
-    rr, edge = _profile(t, u, v, np.random.default_rng(t.tex_seed))
+    rr, edge = _profile(t, u, v, True)
     cov = np.clip(edge + 0.5, 0, 1) * t.alpha
     if not (cov > 0).any():
         return
@@ -216,5 +217,5 @@ def footprint(t: Thing, shadow: np.ndarray, offset: np.ndarray) -> None:
     if fr is None:
         return
     y0, y1, x0, x1, u, v = fr
-    rr, edge = _profile(moved, u, v, None)
+    rr, edge = _profile(moved, u, v, False)
     np.maximum(shadow[y0:y1, x0:x1], np.clip(edge + 0.5, 0, 1) * t.alpha, out=shadow[y0:y1, x0:x1])
