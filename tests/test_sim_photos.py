@@ -89,6 +89,26 @@ def test_heldout_split_draws_only_unseen_surfaces():
         assert all(VARIETIES[v][0] == "train" for v in ph.conditions["varieties"])
 
 
+def test_one_setup_shares_its_conditions(tmp_path):
+    """setup=true: every photo has the setup's background, light and varieties, seeds within 10 % of one size;
+    the setup follows the seed, and photo i still depends only on (seed, i)."""
+    cfg = PhotoSimConfig(count=4, seed=11, split="heldout", setup=True, empty_fraction=0.0, **SMALL)
+    a = simulate_photos(cfg, tmp_path / "a", progress=False)
+    coco = json.loads((a / "labels.json").read_text())
+    conds = [im["conditions"] for im in coco["images"]]
+    setup = coco["info"]["setup"]
+    for c in conds:
+        assert (c["background"], c["light"], c["varieties"]) == (setup["bg"], setup["light"], setup["varieties"])
+    d = np.array([c["seed_diameter_px"] for c in conds])
+    assert d.max() / d.min() <= 1.1 ** 2 + 1e-6 and d.max() > d.min()
+    b = simulate_photos(cfg.model_copy(update={"count": 2}), tmp_path / "b", progress=False)
+    assert (a / "00001.jpg").read_bytes() == (b / "00001.jpg").read_bytes()
+    others = {json.loads((simulate_photos(cfg.model_copy(update={"seed": s, "count": 1}), tmp_path / str(s),
+                                                progress=False) / "labels.json").read_text())["info"]["setup"]["bg"]
+              for s in range(12, 18)}
+    assert len(others) > 1  # another seed, another setup
+
+
 def test_cli_refuses_existing_folder_and_bad_config(photos, tmp_path, monkeypatch, capsys):
     out, _ = photos
     assert run_cli(["simulate", "photos", "--out", out, "-n", "1", "-q"], monkeypatch) == 2

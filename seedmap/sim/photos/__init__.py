@@ -23,7 +23,7 @@ from seedmap.config import ConfigModel, config_to_yaml
 from seedmap.detect.labels import rle_counts_to_string
 from seedmap.io.atomic import atomic_write_text
 from seedmap.progress import track
-from seedmap.sim.photos.compose import Photo, render_photo
+from seedmap.sim.photos.compose import Photo, draw_conditions, render_photo
 
 __all__ = ["PhotoSimConfig", "simulate_photos", "render_photo", "coco_annotations"]
 
@@ -43,6 +43,13 @@ class PhotoSimConfig(ConfigModel):
     seed_px: tuple[float, float] = (10.0, 40.0)
     #: fraction of photos with no seeds at all (only background and look-alikes)
     empty_fraction: float = Field(0.08, ge=0, le=1)
+    #: all photos of one setup, as a user's own photos are: one background, light and set of grain varieties drawn
+    #: from ``seed`` (and ``split``), the seed size varying by +-10 % around one drawn from ``seed_px``
+    setup: bool = False
+
+
+#: random stream of a setup's conditions (apart from every photo's own)
+SETUP_STREAM = 1
 
 
 def _rle(pos: np.ndarray, h: int, w: int) -> dict:
@@ -87,11 +94,14 @@ def simulate_photos(cfg: PhotoSimConfig, out: str | Path, overwrite: bool = Fals
     if not 3.0 <= cfg.seed_px[0] <= cfg.seed_px[1] <= lo / 8:
         raise ValueError(f"seed_px must satisfy 3 <= low <= high <= long_side low / 8, got {cfg.seed_px}")
     seqs = np.random.SeedSequence(cfg.seed).spawn(cfg.count)
+    setup = None
+    if cfg.setup:
+        setup = draw_conditions(np.random.default_rng([cfg.seed, SETUP_STREAM]), cfg.split, cfg.long_side, cfg.seed_px)
     images, anns = [], []
     with outputs.output_dir(out, "photos", inputs, overwrite) as tmp:
         for i in track(range(cfg.count), f"render {out.name}", "photo", enabled=progress):
             rng = np.random.default_rng(seqs[i])
-            ph = render_photo(rng, cfg.split, cfg.long_side, cfg.seed_px, cfg.empty_fraction)
+            ph = render_photo(rng, cfg.split, cfg.long_side, cfg.seed_px, cfg.empty_fraction, setup)
             name = f"{i:05d}.png" if ph.lossless else f"{i:05d}.jpg"
             bgr = cv2.cvtColor(ph.image, cv2.COLOR_RGB2BGR)
             q = int(rng.integers(50, 96))
@@ -103,7 +113,8 @@ def simulate_photos(cfg: PhotoSimConfig, out: str | Path, overwrite: bool = Fals
             cond = {**ph.conditions, **({} if ph.lossless else {"jpeg_quality": q})}
             images.append({"id": i + 1, "file_name": name, "width": int(ph.image.shape[1]),
                            "height": int(ph.image.shape[0]), "seed_px": spx, "conditions": cond})
-        coco = {"info": {"description": "seedmap simulated grain photos", "split": cfg.split, "seed": cfg.seed},
+        coco = {"info": {"description": "seedmap simulated grain photos", "split": cfg.split, "seed": cfg.seed,
+                         **({"setup": {k: setup[k] for k in ("bg", "light", "varieties")}} if setup else {})},
                 "images": images, "annotations": anns, "categories": [{"id": 1, "name": "seed"}]}
         atomic_write_text(tmp / "labels.json", json.dumps(coco))
         atomic_write_text(tmp / "config.yaml", config_to_yaml(cfg))

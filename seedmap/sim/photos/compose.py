@@ -167,9 +167,8 @@ def _camera(rng: Rng, lin: np.ndarray, wb: np.ndarray, d: float, light: str) -> 
     return np.clip(srgb * 255 + 0.5, 0, 255).astype(np.uint8)
 
 
-def render_photo(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tuple[float, float],
-                 empty_fraction: float) -> Photo:
-    """One photo of ``split`` (train | heldout) with its conditions drawn from ``rng`` (module docstring)."""
+def draw_conditions(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tuple[float, float]) -> dict:
+    """A photo's background, size (w, h), seed diameter ``d`` (px), light and grain varieties, drawn from ``rng``."""
     held = split == "heldout"
     bgs = backgrounds(split) + (list(PANICLE_BACKGROUNDS) if held else [])
     bg = bgs[int(rng.integers(len(bgs)))]
@@ -191,6 +190,23 @@ def render_photo(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tupl
     for _ in range(int(rng.integers(1, 4))):
         pool = hv if held and rng.random() < HELDOUT_P else tv
         vars_.append(pool[int(rng.integers(len(pool)))])
+    return {"bg": bg, "w": w, "h": h, "d": d, "light": light, "varieties": vars_}
+
+
+#: photos of one setup: each photo's seed diameter varies by up to this factor around the setup's (camera distance)
+SETUP_SIZE_JITTER = 1.1
+
+
+def render_photo(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tuple[float, float],
+                 empty_fraction: float, setup: dict | None = None) -> Photo:
+    """One photo of ``split`` (train | heldout) with its conditions drawn from ``rng`` (module docstring), or, with
+    ``setup`` (:func:`draw_conditions` of the setup), that background, light and those varieties, its seeds within
+    SETUP_SIZE_JITTER of the setup's size."""
+    c = draw_conditions(rng, split, long_side, seed_px)
+    if setup is not None:
+        j = float(np.exp(rng.uniform(-np.log(SETUP_SIZE_JITTER), np.log(SETUP_SIZE_JITTER))))
+        c = {**c, "bg": setup["bg"], "light": setup["light"], "varieties": setup["varieties"], "d": setup["d"] * j}
+    bg, w, h, d, light, vars_ = c["bg"], c["w"], c["h"], c["d"], c["light"], c["varieties"]
     kind = "panicle" if bg in PANICLE_BACKGROUNDS else ("pile" if rng.random() < 0.3 else "loose")
     empty = rng.random() < empty_fraction
     L, wb = make_light(light, rng)
