@@ -104,3 +104,21 @@ def test_arm_fraction_sets_the_share_of_arm_scan_crops():
     assert 0.42 < arm.mean() < 0.58
     X, *_ = crop_batch(ims, 400, 48, np.random.default_rng(0), seed_fraction=1.0, augment=False)
     assert np.isclose(X.max(axis=(1, 2, 3)), 100 / 255).mean() < 0.3
+
+
+def test_replay_fraction_sets_the_share_of_rehearsal_crops_beside_arm_scans():
+    """``image_weights`` with rehearsal images: they get ``replay_fraction`` of the crops, the user's images the
+    rest (split by ``arm_fraction`` among themselves when both kinds are there)."""
+    from seedmap.detect.train_cnn import image_weights
+
+    ims = [_one_seed_image() for _ in range(6)]
+    ims[4].replay = ims[5].replay = True
+    w = image_weights(ims, None, 0.5)
+    assert np.isclose(w.sum(), 1.0) and np.allclose(w[4:], 0.25) and np.allclose(w[:4], 0.125)
+    ims[0].arm = True
+    w = image_weights(ims, 0.5, 0.4)
+    assert np.isclose(w.sum(), 1.0) and np.isclose(w[0], 0.3) and np.allclose(w[1:4], 0.1) and np.allclose(w[4:], 0.2)
+    assert image_weights(ims[:4], None, 0.5) is None  # nothing to rehearse: uniform
+    ims[0].arm = False
+    assert image_weights(ims, None, 0.0) is None
+

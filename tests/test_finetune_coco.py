@@ -222,3 +222,16 @@ def test_labels_of_one_seed_size_fix_the_scale_several_sizes_leave_it_to_the_est
     assert plan.fixed_scale is fixed
     # every photo with enough labels trains at the network's seed size, whatever the run records
     assert sorted(plan.image_scales.values()) == pytest.approx(sorted(5.0 / s for s in sizes))
+
+
+def test_rehearsal_photos_are_seeded_and_at_the_network_seed_size():
+    from seedmap.detect.replay import replay_images
+
+    a = replay_images(3, 5.0, count=3)
+    b = replay_images(3, 5.0, count=3)
+    assert all(t.replay for t in a) and sum(len(t.boxes) for t in a) > 20
+    assert all(np.array_equal(x.rgb, y.rgb) for x, y in zip(a, b))
+    for t in a:
+        if len(t.boxes):
+            side = np.median(np.sqrt((t.boxes[:, 2] - t.boxes[:, 0]) * (t.boxes[:, 3] - t.boxes[:, 1])))
+            assert side == pytest.approx(5.0, rel=0.1)

@@ -21,6 +21,8 @@ DEFAULT_STEPS = 1500
 DEFAULT_LR = 2e-3
 #: ``train fast-cnn --threads`` default (torch CPU threads: two threads on a busy 2-core machine ran 16x slower)
 DEFAULT_THREADS = 1
+#: fraction of a COCO fine-tune's crops from simulated rehearsal photos (seedmap.detect.replay)
+DEFAULT_REPLAY = 0.0
 
 
 def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],
@@ -221,6 +223,10 @@ def train_fast_cnn_cmd(
     c2: int = typer.Option(16, "--c2", help="Channels at half resolution."),
     iou_weight: float = typer.Option(1.0, "--iou-weight", help="Weight of the box 1-GIoU loss (0 = L1 only)."),
     scale_prob: float = typer.Option(0.5, "--scale-prob", help="Fraction of crops rescaled by 0.8-1.7x."),
+    replay: float = typer.Option(DEFAULT_REPLAY, "--replay", help="On COCO labels: fraction of the crops taken from "
+                                                                  "simulated rehearsal photos, so that a fine-tune "
+                                                                  "on a few photos keeps what the network knew "
+                                                                  "(0 = none)."),
     heat_min_area: float = typer.Option(10.0, "--heat-min-area",
                                         help="Seeds with fewer visible px are no heatmap peaks (4-px slivers "
                                              "up to it are ignored)."),
@@ -270,7 +276,7 @@ def train_fast_cnn_cmd(
     if (out / "fast_cnn.onnx").exists() and not resume:
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
     cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
-                         iou_weight=iou_weight, scale_prob=scale_prob, heat_min_area=heat_min_area,
+                         iou_weight=iou_weight, scale_prob=scale_prob, replay=replay, heat_min_area=heat_min_area,
                          arm_fraction=arm_fraction, lr=lr, val_fraction=val_fraction,
                          init_weights=str(init_p) if init_p else None)
     m = train_cnn(list(data), out, list(val) if val else None, cfg, resume=resume, images_root=images_root)

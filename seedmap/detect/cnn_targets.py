@@ -15,7 +15,7 @@ so that the network learns the seeds at the size it sees them at, and records bo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +36,7 @@ class TrainImage:
     area: np.ndarray  # (N,) float32 visible pixels of each instance
     arm: bool = False  # from an arm scan (a dataset with arm.yaml: close-up panicle images)
     labelled: bool = False  # from a user's COCO labels (labelled_targets)
+    replay: bool = False  # a rehearsal image of a fine-tune (seedmap.detect.replay)
 
 
 def image_targets(rgb: np.ndarray, labels: np.ndarray, inst, min_area: int = 1) -> TrainImage:
@@ -126,7 +127,7 @@ def pad_to(ti: TrainImage, size: int) -> TrainImage:
     ph, pw = max(size - h, 0), max(size - w, 0)
     rgb = np.pad(ti.rgb, ((0, ph), (0, pw), (0, 0)))
     inst = np.pad(ti.inst, ((0, ph), (0, pw)), constant_values=-1)
-    return TrainImage(rgb, inst, ti.boxes, ti.kp, ti.centers, ti.area, ti.arm, ti.labelled)
+    return replace(ti, rgb=rgb, inst=inst)
 
 
 def rescale_targets(ti: TrainImage, s: float) -> TrainImage:
@@ -146,7 +147,7 @@ def rescale_targets(ti: TrainImage, s: float) -> TrainImage:
     c = np.round(kp).astype(np.int64)
     c[:, 0] = np.clip(c[:, 0], 0, ws - 1)
     c[:, 1] = np.clip(c[:, 1], 0, hs - 1)
-    return TrainImage(rgb, inst, boxes, kp, c, (ti.area * sx * sy).astype(np.float32), ti.arm, ti.labelled)
+    return replace(ti, rgb=rgb, inst=inst, boxes=boxes, kp=kp, centers=c, area=(ti.area * sx * sy).astype(np.float32))
 
 
 def coco_image_targets(src: CocoSource, k: int, scale: float = 1.0) -> TrainImage:

@@ -137,15 +137,20 @@ def training_set_size(dataset: str | Path, images_root: str | Path | None = None
     return len(CocoSource(dataset, images_root)) if is_coco_file(dataset) else len(SeedmapDataset(dataset))
 
 
-def image_weights(images: list[TrainImage], arm_fraction: float | None) -> np.ndarray | None:
-    """Sampling probabilities of the images so that ``arm_fraction`` of the crops come from arm scans
-    (None, or only one kind present: None = every image alike)."""
-    if arm_fraction is None:
-        return None
-    arm = np.array([im.arm for im in images], bool)
-    if arm.all() or not arm.any():
-        return None
-    return np.where(arm, arm_fraction / arm.sum(), (1.0 - arm_fraction) / (~arm).sum())
+def image_weights(images: list[TrainImage], arm_fraction: float | None, replay_fraction: float = 0.0
+                  ) -> np.ndarray | None:
+    """Sampling probabilities of the images so that ``arm_fraction`` of the crops come from arm scans and
+    ``replay_fraction`` from rehearsal images (a kind absent, or None / 0: every image alike; None = all alike)."""
+    rep = np.array([im.replay for im in images], bool)
+    w = None
+    if arm_fraction is not None:
+        arm = np.array([im.arm for im in images], bool) & ~rep
+        if arm.any() and (~arm & ~rep).any():
+            w = np.where(arm, arm_fraction / arm.sum(), (1.0 - arm_fraction) / (~arm & ~rep).sum()) * ~rep
+    if replay_fraction <= 0 or not rep.any() or rep.all():
+        return w
+    own = (np.where(rep, 0.0, 1.0 / (~rep).sum()) if w is None else w / w.sum())
+    return own * (1.0 - replay_fraction) + np.where(rep, replay_fraction / rep.sum(), 0.0)
 
 
 @dataclass
@@ -349,6 +354,8 @@ class CnnTrainConfig:
     scale_prob: float = 0.5
     scale_lo: float = 0.8
     scale_hi: float = 1.7
+    #: fraction of the crops from rehearsal photos (seedmap.detect.replay) when training on COCO labels (0 = none)
+    replay: float = 0.0
     #: start from the weights of this fast_cnn ONNX file (fine-tuning; its channels replace c1/c2) instead of a
     #: random initialisation
     init_weights: str | None = None
@@ -474,10 +481,16 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     tr = load_training_images(train_sets, plan.train, 1, progress, images_root, plan.scale, plan.image_scales)
     va = load_training_images(val_sets or train_sets, plan.val, 1, progress, images_root, plan.scale,
                               plan.image_scales)
+    n_replay = 0
+    if cfg.replay > 0 and any(is_coco_file(d) for d in train_sets):
+        from seedmap.detect.replay import replay_images
+
+        rep = replay_images(cfg.seed, net_seed_px, progress)
+        tr, n_replay = tr + rep, len(rep)
     tr, va = [pad_to(im, cfg.crop) for im in tr], [pad_to(im, cfg.crop) for im in va]
     spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
     vrng = np.random.default_rng(cfg.seed + 1)
-    w_tr, w_va = image_weights(tr, cfg.arm_fraction), image_weights(va, cfg.arm_fraction)
+    w_tr, w_va = image_weights(tr, cfg.arm_fraction, cfg.replay), image_weights(va, cfg.arm_fraction)
     vbatch = [torch.from_numpy(np.ascontiguousarray(a))
               for a in crop_batch(va, cfg.val_crops, cfg.crop, vrng, cfg.seed_fraction, augment=False, spec=spec,
                                   weights=w_va)]
@@ -555,7 +568,8 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
 
     info = {"train_sets": [str(d) for d in train_sets], "val_sets": [str(d) for d in (val_sets or [])],
             "config": asdict(cfg), "steps": step,
-            "train_images": len(tr), "val_images": len(va), "initial_val_loss": initial_val_loss,
+            "train_images": len(tr) - n_replay, "replay_images": n_replay, "val_images": len(va),
+            "initial_val_loss": initial_val_loss,
             "cpu_s": prev_cpu + time.process_time() - t_cpu0,
             "wall_s_this_run": time.perf_counter() - t_wall0,
             "final": history[-1] if history else None}
