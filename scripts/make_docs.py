@@ -113,7 +113,7 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
              f"```bash\n{d.get('command', cmds.get('paper.json', ''))}\n```\n",
              "Per range: fraction of the range mapped (maximum distance mapped over the range length) / the same "
              "with the map validated against ground truth (position error within max(5 % of distance, 5 cm)). "
-             "`published` is the paper's Table 1.\n"]
+             "`published` is the paper's Table 1 (ORB-SLAM2, beside `orbslam3`: its Table 2).\n"]
     for sc in dict.fromkeys(r["scenario"] for r in recs):
         rs = [r for r in recs if r["scenario"] == sc]
         methods = list(dict.fromkeys(r["method"] for r in rs))

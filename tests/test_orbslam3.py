@@ -189,3 +189,17 @@ def test_orbslam3_tracks_a_simulated_range_with_the_shipped_vocabulary(tiny_rang
     assert step_est @ step_gt > 0.8 * (step_gt @ step_gt)  # moves the way the camera moved (not T_cam_world)
     rows = (tmp_path / "r" / "matches_per_frame.csv").read_text().splitlines()
     assert rows[0] == "frame,timestamp,state,inliers,ok" and len(rows) == len(ds) + 1
+
+
+def test_orbslam3_sits_beside_the_published_orb_slam2_figure():
+    from seedmap.eval.benchmark import RunRecord, scenario_tables, side_by_side_table
+    from seedmap.eval.published import PUBLISHED_MDM, published_key
+
+    assert published_key("orbslam3") == "orb-slam2" and published_key("orb") == "orb"
+    recs = [RunRecord("paper", "paper1", "seeds+fast", "ok", range_length_m=3.56, mdm_fraction=1.0, mdm_m=3.56),
+            RunRecord("paper", "paper1", "orbslam3", "ok", note="vocabulary: v; longest tracked segment 3.60 m",
+                      range_length_m=3.56, mdm_fraction=0.5, mdm_m=1.78)]
+    side = side_by_side_table(recs)
+    assert "| orbslam3 | 50% |" in side and "6% (ORB-SLAM2)" in side and "not run here" not in side
+    assert "Runs: paper1 orbslam3: vocabulary: v" in scenario_tables(recs, "paper")
+    assert PUBLISHED_MDM["orb-slam2"][0] == 0.35
