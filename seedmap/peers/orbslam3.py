@@ -53,8 +53,10 @@ def unavailable() -> str | None:
     """``None`` when ``pyorbslam3`` imports, else the benchmark's n/a reason."""
     try:
         import pyorbslam3  # noqa: F401
-    except ImportError:
+    except ModuleNotFoundError:
         return NOT_INSTALLED
+    except ImportError as e:  # installed, but a system library it needs is missing (e.g. libGL)
+        return f"{NOT_INSTALLED} ({str(e).splitlines()[0][:160]})"
     return None
 
 
@@ -109,10 +111,16 @@ def vocabulary_file(cfg: OrbSlam3Config) -> tuple[Path, str]:
     sha = hashlib.sha1(data).hexdigest()[:12]
     target = _cache_dir() / f"orbvoc_sim-{sha}.txt"
     if not target.is_file():
-        target.parent.mkdir(parents=True, exist_ok=True)
         tmp = target.with_name(f".{target.name}.{os.getpid()}.partial")
-        tmp.write_bytes(gzip.decompress(data))
-        os.replace(tmp, target)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_bytes(gzip.decompress(data))
+            os.replace(tmp, target)
+        except OSError as e:
+            if tmp.parent.is_dir():
+                tmp.unlink(missing_ok=True)
+            raise InputError(f"cannot unpack the shipped ORB vocabulary here ({e.strerror or e}); set XDG_CACHE_HOME "
+                             "or orbslam3.vocabulary", target.parent) from None
     return target, "seedmap sim vocabulary (orbvoc_sim)"
 
 
@@ -211,8 +219,8 @@ def run_orbslam3(dataset: str | Path, out: Path, cfg: OrbSlam3Config | None = No
     from seedmap.slam.outputs import report_markdown
     from seedmap.slam.pipeline import SlamResult, range_length_of
 
-    if unavailable():
-        raise SeedmapError(NOT_INSTALLED)
+    if (why := unavailable()) is not None:
+        raise SeedmapError(why)
     cfg = cfg or OrbSlam3Config()
     scfg = slam_cfg or SlamConfig()
     voc, voc_label = vocabulary_file(cfg)
