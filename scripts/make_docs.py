@@ -100,6 +100,10 @@ def load(name: str) -> dict | None:
 # ------------------------------------------------------------------------------------------------
 
 
+#: Methods whose published figure is another system's (``seedmap.eval.published.PUBLISHED_COUNTERPART``).
+PUBLISHED_AS = {"orbslam3": "ORB-SLAM2 (beside orbslam3)"}
+
+
 def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
     d = load("paper.json")
     if d is None:
@@ -109,7 +113,7 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
              f"```bash\n{d.get('command', cmds.get('paper.json', ''))}\n```\n",
              "Per range: fraction of the range mapped (maximum distance mapped over the range length) / the same "
              "with the map validated against ground truth (position error within max(5 % of distance, 5 cm)). "
-             "`published` is the paper's Table 1.\n"]
+             "`published` is the paper's Table 1 (ORB-SLAM2, beside `orbslam3`: its Table 2).\n"]
     for sc in dict.fromkeys(r["scenario"] for r in recs):
         rs = [r for r in recs if r["scenario"] == sc]
         methods = list(dict.fromkeys(r["method"] for r in rs))
@@ -130,7 +134,8 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
                           None)
             row = [f"{n} ({length:.2f} m)" if length else n] + [cell(by.get((n, m))) for m in methods]
             if has_pub:
-                pubs = [f"{method_label(m)}: {'failed' if r.get('published_failed') else num(r.get('published_mdm_m'))}"
+                pubs = [f"{PUBLISHED_AS.get(m, method_label(m))}: "
+                        f"{'failed' if r.get('published_failed') else num(r.get('published_mdm_m'))}"
                         for m in methods if (r := by.get((n, m))) and (r.get("published_mdm_m") is not None
                                                                      or r.get("published_failed"))]
                 row.append("; ".join(pubs))
@@ -152,6 +157,10 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
                         if r.get("status") != "ok" and r.get("note")})
         if notes:
             parts.append("\nNotes: " + "; ".join(notes) + "\n")
+        runs = [f"{r['method']} on {r['range_name']}: {r['note']}" for r in rs if r.get("status") == "ok"
+                and r.get("note")]
+        if runs:  # peers: the vocabulary used and the longest tracked segment
+            parts.append("\nRuns: " + "; ".join(runs) + "\n")
     return "Paper benchmark (Table 1)", "\n".join(parts)
 
 

@@ -312,3 +312,50 @@ def train_export_cmd(
     for p in export_weights(weights, out, score_threshold=score_threshold, nms_iou=nms_iou,
                             max_detections=max_detections):
         typer.echo(f"exported {p}")
+
+
+@train_app.command("orb-vocabulary")
+def train_orb_vocabulary_cmd(
+    images: List[Path] = typer.Argument(..., help="Training images: image files, folders of images or dataset "
+                                                  "folders (their rectified left images)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Vocabulary file to write (DBoW2 text, like ORBvoc.txt; "
+                                                      "a name ending in .gz is gzipped)."),
+    k: int = typer.Option(10, "--k", help="Branching factor of the k-means tree (DBoW2's k)."),
+    levels: Optional[int] = typer.Option(None, "--levels", "-L",
+                                         help="Depth of the tree (default: about 20 training features per word)."),
+    features: int = typer.Option(2000, "--features", help="ORB features per image (ORB-SLAM3's nFeatures)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the k-means++ initialisation."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a vocabulary file."),
+) -> None:
+    """Train an ORB vocabulary for ORB-SLAM3 (`seedmap benchmark --methods orbslam3 --set
+    orbslam3.vocabulary=FILE`): ORB-SLAM3's ORB features, a DBoW2 k-means tree, TF-IDF weights."""
+    import gzip
+
+    from seedmap.io.atomic import atomic_write_bytes
+    from seedmap.peers import orb_vocabulary as ov
+    from seedmap.progress import Progress, track
+
+    if not 2 <= k <= 20 or (levels is not None and not 1 <= levels <= 10) or not 100 <= features <= 20000:
+        raise SeedmapError("--k must be 2..20, --levels 1..10 and --features 100..20000 (DBoW2's and ORB-SLAM3's "
+                           "limits)")
+
+    def is_vocabulary(p: Path) -> bool:
+        """A DBoW2 text vocabulary (gzipped or not): the only kind of file --overwrite replaces."""
+        try:
+            with (gzip.open(p, "rb") if p.suffix == ".gz" else open(p, "rb")) as fh:
+                head = fh.readline(200).split()
+            return len(head) == 4 and all(x.isdigit() for x in head)
+        except (OSError, EOFError):
+            return False
+
+    check_output_file(out, images, overwrite, is_vocabulary, what="vocabulary file")
+    todo = ov.training_images(images)
+    per_image = [ov.orb_descriptors(load(), features) for _, load in track(todo, "ORB features", "image")]
+    n_desc = sum(len(d) for d in per_image)
+    L = levels if levels is not None else ov.levels_for(n_desc, k)
+    with Progress(n_desc, f"k-means tree k={k} L={L}", "feature") as bar:
+        voc = ov.train_vocabulary(per_image, k, L, seed, bar.advance)
+    text = ov.vocabulary_text(voc).encode()
+    atomic_write_bytes(out, gzip.compress(text, mtime=0) if out.suffix == ".gz" else text)
+    typer.echo(f"ORB vocabulary written to {out}: {len(todo)} images, {n_desc} features, k={k}, L={L}, "
+               f"{voc.n_words} words")

@@ -41,7 +41,13 @@ def published_mean_fraction(method: str) -> float:
     return sum(f) / len(f)
 
 
+#: Our methods compared with a different published column: ORB-SLAM3 (run here) beside the paper's ORB-SLAM2.
+PUBLISHED_COUNTERPART: dict[str, str] = {"orbslam3": "orb-slam2"}
+
+
 def published_key(method: str) -> str | None:
-    """Which published column corresponds to one of our method names (``seeds+fast`` -> ``seeds``)."""
+    """Which published column corresponds to one of our method names (``seeds+fast`` -> ``seeds``,
+    ``orbslam3`` -> ``orb-slam2``)."""
     base = method.split("+", 1)[0].lower()
+    base = PUBLISHED_COUNTERPART.get(base, base)
     return base if base in PUBLISHED_MDM else None

@@ -134,6 +134,9 @@ def scenario_tables(records: Sequence[RunRecord], scenario: str) -> str:
     notes = sorted({f"{r.method}: {r.note}" for r in rs if r.status != "ok" and r.note})
     if notes:
         parts.append("Notes: " + "; ".join(notes) + "\n")
+    peer_notes = [f"{r.range_name} {r.method}: {r.note}" for r in rs if r.status == "ok" and r.note]
+    if peer_notes:  # a peer's finished run says which vocabulary it used and its longest tracked segment
+        parts.append("Runs: " + "; ".join(peer_notes) + "\n")
     return "\n".join(parts)
 
 
@@ -160,12 +163,15 @@ def side_by_side_table(records: Sequence[RunRecord]) -> str:
     for m in _methods_in(rs):
         key = published_key(m)
         pub = _pct(published_mean_fraction(key)) if key else "–"
+        if key and key != m.split("+", 1)[0].lower():  # a counterpart (orbslam3 beside ORB-SLAM2)
+            pub += f" ({PUBLISHED_TITLES[key]})"
         s = summ[m]
         na = all(r.status == "n/a" for r in rs if r.method == m)
         rows.append([method_label(m), "n/a" if na else _pct(s["mean_fraction"]),
                      "n/a" if na else _pct(s["mean_gt_fraction"]),
                      pub])
-    rows.append(["orb-slam2 (not run here)", "–", "–", _pct(published_mean_fraction("orb-slam2"))])
+    if not any(published_key(m) == "orb-slam2" for m in _methods_in(rs)):
+        rows.append(["orb-slam2 (not run here)", "–", "–", _pct(published_mean_fraction("orb-slam2"))])
     return "**Mean fraction of range mapped: simulated paper ranges vs published (real field data)**\n\n" + \
         md_table(["method", "this run", "this run, GT-validated", "published (real field data)"], rows)
 

@@ -30,6 +30,7 @@ from seedmap.eval.benchmark.spec import (
 from seedmap.eval.published import PUBLISHED_MDM, published_key
 from seedmap.io import detect_format, open_dataset
 from seedmap.io.atomic import atomic_write_text
+from seedmap.peers import PEERS
 from seedmap.progress import Progress
 from seedmap.workers import process_pool
 
@@ -65,12 +66,17 @@ def simulate_job(preset: str, seed: int, overrides: Sequence[str], out: str) -> 
 
 def slam_job(dataset: str, out: str, matcher: str, detector: str | None, slam_overrides: Sequence[str],
              features: dict, log: str, html_report: bool = False) -> tuple[str, str]:
-    """Run one method on one dataset through :func:`run_slam`; ``(status, note)``, never raises."""
+    """Run one method on one dataset through :func:`run_slam` (a peer through its registry entry, ``features``
+    then holding the peer's config); ``(status, note)``, never raises."""
     try:
         from seedmap.slam.pipeline import run_slam
 
-        config = _slam_config(slam_overrides, features if matcher in FEATURE_KINDS else None)
         out_p = Path(out)
+        if matcher in PEERS:
+            PEERS[matcher].run(dataset, out_p, features, _slam_config(slam_overrides, None),
+                               overwrite=out_p.exists(), progress=False)
+            return "ok", ""
+        config = _slam_config(slam_overrides, features if matcher in FEATURE_KINDS else None)
         run_slam(dataset, out_p, matcher=matcher, detector=detector or "gt", config=config,
                  overwrite=out_p.exists(), progress=False, html_report=html_report)
         return "ok", ""
@@ -181,6 +187,8 @@ def load_run(run_dir: Path, spec: RangeSpec, method: MethodSpec) -> RunRecord:
         temporal_matches=temporal,
         inlier_matches=inliers,
     )
+    if method.matcher in PEERS:
+        rec.note = PEERS[method.matcher].note(run_dir)
     if rec.mdm_fraction is None and rec.mdm_m is not None and rec.range_length_m:
         rec.mdm_fraction = rec.mdm_m / rec.range_length_m
     _attach_published(rec, spec)
@@ -254,6 +262,8 @@ def run_benchmark(
         else:
             has_gt = spec.scenario != "user" or dataset_has_gt(spec.dataset)
             per_range[spec.name] = default_methods(cfg, with_gt=has_gt)
+    for name in sorted({m.matcher for ms in per_range.values() for m in ms if not m.unavailable} & set(PEERS)):
+        PEERS[name].check(getattr(cfg, name).model_dump(mode="json"))  # e.g. a vocabulary that is not one
     # a benchmark folder of its own is resumed; anything else (the user's folder, a dataset) is refused
     outputs.resume_dir(out, "benchmark", [s.dataset for s in ranges if s.scenario == "user"])
     dump_config(cfg, out / "config.yaml")
@@ -283,8 +293,11 @@ def run_benchmark(
     def slam_args(spec: RangeSpec, m: MethodSpec) -> tuple:
         rd = run_dir_of(out, spec, m)
         log = out / "logs" / f"{spec.scenario}-{spec.name}-{safe_name(m.name)}.log"
-        feats = (cfg.features_for(m.matcher).model_dump(mode="json", exclude={"gates"})
-                 if m.matcher in FEATURE_KINDS else {})
+        feats: dict = {}
+        if m.matcher in FEATURE_KINDS:
+            feats = cfg.features_for(m.matcher).model_dump(mode="json", exclude={"gates"})
+        elif m.matcher in PEERS:
+            feats = getattr(cfg, m.matcher).model_dump(mode="json")
         return (str(spec.dataset), str(rd), m.matcher, m.detector, list(cfg.slam_overrides), feats, str(log),
                 cfg.html_reports)
 

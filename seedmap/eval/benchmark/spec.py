@@ -14,6 +14,8 @@ from seedmap.associate.features import TUNED, FeatureMatcherConfig
 from seedmap.config import ConfigModel
 from seedmap.errors import ConfigError, InputError, SeedmapError
 from seedmap.eval.published import PAPER_RANGE_LENGTHS
+from seedmap.peers import PEERS
+from seedmap.peers.orbslam3 import OrbSlam3Config
 
 #: Simulator overrides of the harder held-out scene variations (``scenes``); defaults in the comments.
 SCENE_OVERRIDES: tuple[str, ...] = (
@@ -38,12 +40,14 @@ class BenchmarkConfig(ConfigModel):
     sim_overrides: list[str] = Field(default_factory=list, description="simulator key=value for every range")
     scenes: bool = Field(False, description="also run the harder held-out scene variations")
     methods: list[str] | None = Field(
-        None, description="methods to run (default: seeds+<every available detector>, sift, surf, orb, akaze)")
+        None, description="methods to run (default: seeds+<every available detector>, sift, surf, orb, akaze, "
+                          "orbslam3)")
     slam_overrides: list[str] = Field(default_factory=list, description="SlamConfig key=value for every run")
     features: FeatureMatcherConfig = Field(default_factory=FeatureMatcherConfig)
     feature_tuning: dict[str, dict[str, Any]] = Field(
         default_factory=lambda: {k: dict(v) for k, v in TUNED.items()},
         description="per-kind overrides of `features` (default: the values tuned on the training range)")
+    orbslam3: OrbSlam3Config = Field(default_factory=OrbSlam3Config)
     workers: int = Field(2, ge=1, le=64, description="parallel worker processes (each single-threaded)")
     html_reports: bool = Field(False, description="also write each run's report.html (about 2.7 s CPU per run)")
 
@@ -69,7 +73,8 @@ class RangeSpec:
 
 @dataclass
 class MethodSpec:
-    """A matcher (+ detector for the seeds matcher); ``unavailable`` holds the n/a reason."""
+    """A matcher (+ detector for the seeds matcher) or a peer (``matcher`` names a :data:`seedmap.peers.PEERS`
+    entry); ``unavailable`` holds the n/a reason."""
 
     name: str
     matcher: str
@@ -178,7 +183,7 @@ def dataset_has_gt(path: Path) -> bool:
 
 
 def default_methods(cfg: BenchmarkConfig, with_gt: bool = True) -> list[MethodSpec]:
-    """``seeds+<detector>`` for each available detector, then every descriptor baseline.
+    """``seeds+<detector>`` for each available detector, every descriptor baseline, then every peer SLAM system.
 
     ``frcnn-pix2pix`` joins only when trained weights (and torch) are present; the ``gt`` oracle
     only where the data has ground truth. ``cfg.methods`` picks from these (any ``seeds+<detector>`` is accepted).
@@ -199,6 +204,8 @@ def default_methods(cfg: BenchmarkConfig, with_gt: bool = True) -> list[MethodSp
         methods.append(MethodSpec(f"seeds+{d}", "seeds", d, why))
     for k in FEATURE_KINDS:
         methods.append(MethodSpec(k, k, None, avail.get(k)))
+    for name, peer in PEERS.items():
+        methods.append(MethodSpec(name, name, None, peer.unavailable()))
     if cfg.methods is not None:
         by_name = {m.name: m for m in methods}
         chosen = []
