@@ -109,11 +109,34 @@ def subset(folder: Path, gt: dict, names: list[str], dest: Path) -> Path:
     return dest
 
 
+def finetune(folder: Path, n: int, extra: list[str], work: Path, tag: str) -> dict:
+    """``seedmap train fast-cnn`` on the first ``n`` photos with seeds of ``folder``; box F1 of ``seedmap detect``
+    on the rest before (defaults) and after (the fine-tuned weights)."""
+    gt = json.loads((folder / "labels.json").read_text())
+    with_seeds = {an["image_id"] for an in gt["annotations"]}
+    names = [im["file_name"] for im in gt["images"]]
+    train = [im["file_name"] for im in gt["images"] if im["id"] in with_seeds][:n]
+    rest = [k for k in names if k not in train]
+    tr = subset(folder, gt, train, work / f"{tag}_train")
+    te = subset(folder, gt, rest, work / f"{tag}_test")
+    (te / "labels.json").unlink()
+    before = detect_and_score(te, gt, rest, work, f"{tag}_before")
+    wall, cpu = seedmap("train", "fast-cnn", str(tr / "labels.json"), "--out", str(work / f"{tag}_ft"), *extra)
+    tm = json.loads((work / f"{tag}_ft" / "train_metrics.json").read_text())
+    after = detect_and_score(te, gt, rest, work, f"{tag}_after", "--weights", str(work / f"{tag}_ft" / "fast_cnn.onnx"))
+    print("finetune", tag, round(wall), before["f1"], "->", after["f1"], flush=True)
+    return {"folder": str(folder), "setup": gt.get("info", {}).get("setup"), "train_images": train,
+            "test_images": len(rest), "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "steps": tm.get("steps"),
+            "val_f1": tm.get("val_f1"), "before": before, "after": after}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--heldout", type=Path, required=True, help="seedmap simulate photos --split heldout folder")
     ap.add_argument("--seen", type=Path, help="a --split train folder not used for training")
-    ap.add_argument("--finetune-n", type=int, default=10, help="labelled held-out photos to fine-tune on")
+    ap.add_argument("--setup", type=Path, action="append", default=[],
+                    help="a --split heldout --set setup=true folder (one user's setup): fine-tuned on its own")
+    ap.add_argument("--finetune-n", type=int, default=10, help="labelled photos to fine-tune on")
     ap.add_argument("--finetune-args", default="", help="extra options of seedmap train fast-cnn")
     ap.add_argument("--compare-domain", action="append", default=[], help="also score cnn.domain=NAME")
     ap.add_argument("--out", type=Path, required=True)
@@ -133,24 +156,13 @@ def main() -> None:
                                                       f"cnn.domain={dom}")
             res["sets"][tag] = r
             print(tag, {k: (v["f1"], v["precision"], v["recall"]) for k, v in r.items() if isinstance(v, dict)})
-        # fine-tune on the first photos with seeds of the held-out set, score on the rest
-        gt = json.loads((a.heldout / "labels.json").read_text())
-        with_seeds = {an["image_id"] for an in gt["annotations"]}
-        names = [im["file_name"] for im in gt["images"]]
-        train = [im["file_name"] for im in gt["images"] if im["id"] in with_seeds][: a.finetune_n]
-        rest = [n for n in names if n not in train]
-        tr = subset(a.heldout, gt, train, work / "ft_train")
-        te = subset(a.heldout, gt, rest, work / "ft_test")
-        (te / "labels.json").unlink()
-        before = detect_and_score(te, gt, rest, work, "ft_before")
-        wall, cpu = seedmap("train", "fast-cnn", str(tr / "labels.json"), "--out", str(work / "ft"),
-                            *a.finetune_args.split())
-        tm = json.loads((work / "ft" / "train_metrics.json").read_text())
-        after = detect_and_score(te, gt, rest, work, "ft_after", "--weights", str(work / "ft" / "fast_cnn.onnx"))
-        res["finetune"] = {"train_images": train, "test_images": len(rest), "wall_s": round(wall, 1),
-                           "cpu_s": round(cpu, 1), "steps": tm.get("steps"), "val_f1": tm.get("val_f1"),
-                           "before": before, "after": after}
-        print("finetune", wall, cpu, before["f1"], "->", after["f1"])
+        # fine-tunes: on the mixed held-out set (many setups), and on each one-setup set (a user's case)
+        extra = a.finetune_args.split()
+        res["finetune"] = finetune(a.heldout, a.finetune_n, extra, work, "mixed")
+        res["setups"] = [finetune(f, a.finetune_n, extra, work, f"setup{i}") for i, f in enumerate(a.setup)]
+        if res["setups"]:
+            res["setups_mean"] = {k: round(float(np.mean([r[k]["f1"] for r in res["setups"]])), 4)
+                                  for k in ("before", "after")}
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=1))
 

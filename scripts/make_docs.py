@@ -416,9 +416,21 @@ def page_photos(cmds: dict[str, str]) -> tuple[str, str] | None:
             "`seedmap detect FOLDER` with its defaults (automatic seed scale, photo network); box IoU ≥ 0.5, "
             "one-to-one, every labelled seed counts. The renderer is kinder than the field: these are not real "
             "photos.\n", table(head, rows)]
+    st = d.get("setups") or []
+    if st:
+        body += [f"\n### One setup: out of the box, and after a fine-tune on {len(st[0]['train_images'])} of its photos\n",
+                 "Each set is one user's setup (`seedmap simulate photos --split heldout --set setup=true`): one "
+                 "held-out background, light and seed lot. `seedmap train fast-cnn` with its defaults on the first "
+                 f"{len(st[0]['train_images'])} labelled photos, `seedmap detect --weights` on the others.\n",
+                 table(["setup (background, light, varieties)", "photos tested", "F1 out of the box", "F1 after",
+                        "precision after", "recall after", "fine-tune wall s", "CPU s"],
+                       [[", ".join([x["setup"]["bg"], x["setup"]["light"], "+".join(x["setup"]["varieties"])])
+                         if x.get("setup") else x["folder"], num(x["test_images"]), num(x["before"]["f1"]),
+                         num(x["after"]["f1"]), num(x["after"]["precision"]), num(x["after"]["recall"]),
+                         num(x["wall_s"]), num(x["cpu_s"])] for x in st])]
     ft = d.get("finetune")
     if ft:
-        body += [f"\n### Fine-tune on {len(ft['train_images'])} held-out photos\n",
+        body += [f"\n### Fine-tune on {len(ft['train_images'])} photos of the mixed held-out set\n",
                  f"`seedmap train fast-cnn` with its defaults on {len(ft['train_images'])} labelled photos of the "
                  f"held-out set ({ft.get('steps')} steps, {num(ft['wall_s'])} s wall, {num(ft['cpu_s'])} s CPU), "
                  f"then `seedmap detect --weights` on the other {ft['test_images']}:\n",
@@ -488,9 +500,15 @@ def glance() -> str:
         if h:
             txt = (f"F1 {num(h['f1'])} out of the box on {h['images']} photos of backgrounds, lights and varieties "
                    "never trained on")
+            st = d.get("setups") or []
             if ft:
                 txt += (f"; {num(ft['after']['f1'])} after `seedmap train fast-cnn` on {len(ft['train_images'])} of "
                         f"them ({num(ft['wall_s'] / 60, 2)} min)")
+            if st:
+                txt += (f"; on {len(st)} unseen one-setup sets {min(x['before']['f1'] for x in st):.2f}–"
+                        f"{max(x['before']['f1'] for x in st):.2f} out of the box, "
+                        f"{min(x['after']['f1'] for x in st):.3f}–{max(x['after']['f1'] for x in st):.3f} after "
+                        f"`seedmap train fast-cnn` on {len(st[0]['train_images'])} of their photos")
             rows.append(["seed detection in simulated grain photos", txt, "[photos](docs/results/photos.md)"])
     if d := load("bench_detect.json"):
         one = _row_named(d["rows"], "fast-cnn (1 onnxruntime thread, gated tiles)")
