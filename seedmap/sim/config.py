@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from seedmap.config import ConfigModel
 from seedmap.errors import ConfigError
 from seedmap.records import StereoCalib
+from seedmap.sim.conditions import ConditionsConfig
 
 # ---- world ----
 #: std of plant offsets across the row line (m)
@@ -269,6 +270,7 @@ class SimConfig(ConfigModel):
     camera: CameraConfig = Field(default_factory=CameraConfig)
     motion: MotionConfig = Field(default_factory=MotionConfig)
     imaging: ImagingConfig = Field(default_factory=ImagingConfig)
+    conditions: ConditionsConfig = Field(default_factory=ConditionsConfig)
 
     @property
     def length(self) -> float:

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from seedmap.sim.conditions import WET_COVER, WET_KS, WET_SHININESS
 from seedmap.sim.config import AMBIENT, FLASH_RADIUS, LIGHT_CUTOFF, SimConfig
 from seedmap.sim.render.culling import _CamCovers
 from seedmap.sim.render.rays import _dot3, _Hits, _normalize3, _put_rows, _take, _xf
@@ -55,6 +56,16 @@ def _soil_albedo(world: World, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     b += (tex[j1, i1] - b) * fu
     a += (b - a) * fv
     return world.soil_color.astype(np.float32)[:, None] * a[None, :]
+
+
+def _wet_patches(s: np.ndarray, w: np.ndarray, prim: np.ndarray) -> np.ndarray:
+    """Water film cover in [0, 1] of leaf points at along/across coordinates ``s``, ``w`` on triangle ``prim``:
+    smooth patches (two waves along and across the blade, a phase per leaf) over about ``WET_COVER`` of it."""
+    leaf = (prim // 64).astype(np.float32)  # 64 triangles per leaf
+    p = np.sin(np.float32(2 * np.pi) * (np.float32(7.0) * s + np.float32(0.37) * leaf))
+    p += np.sin(np.float32(2 * np.pi) * (np.float32(2.0) * w + np.float32(3.0) * s + np.float32(0.61) * leaf))
+    # p in [-2, 2]; wet where it is above the quantile that leaves WET_COVER, with soft edges
+    return np.clip((p - np.float32(2.0 - 4.0 * WET_COVER)) * np.float32(2.0), 0, 1)
 
 
 def _soil_tex_f32(world: World) -> np.ndarray:
@@ -134,6 +145,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     ks = np.empty(m, np.float32)
     shin = np.full(m, SHIN_DEFAULT, np.float32)
     ao = np.ones(m, np.float32)
+    wet = np.zeros(m, np.float32) if cfg.conditions.wet > 0 else None  # water film cover of leaves and stalks
     # soil: flat, textured
     soil = span(CLS_SOIL, CLS_SOIL)
     if soil.stop > soil.start:
@@ -165,6 +177,10 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
             tipdry *= np.float32(0.25)
             tipdry += np.float32(1.0)
             albedo[:, lf] *= np.take(_LEAF_LUT, wi) * tipdry
+            if wet is not None:
+                wet[lf] = _wet_patches(s, w, np.take(h.prim, le[li]))
+        if wet is not None:
+            wet[st_] = WET_COVER
     # rachis: flat normals from the panicle mesh, rotated by the wind
     rm = span(CLS_RACHIS, CLS_RACHIS)
     if rm.stop > rm.start:
@@ -238,6 +254,9 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     spec *= ks
     spec *= irr
     spec *= ndl > 0
+    if wet is not None:  # the water film: a sharp highlight on top of the surface's own
+        spec += np.exp(np.log(nh) * np.float32(WET_SHININESS)) * (np.float32(WET_KS * cfg.conditions.wet) * wet) \
+            * irr * (ndl > 0)
     ndl *= irr
     direct = albedo * ndl
     direct += spec
