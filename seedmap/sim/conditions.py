@@ -44,8 +44,9 @@ BLUR_SAMPLES = 9
 FLASH_SD = 0.06
 #: auto-exposure: relative std of each camera's gain wander and its frame-to-frame correlation
 AE_SD, AE_RHO = 0.12, 0.7
-#: wet leaves and stalks: specular strength and exponent of the water film, share of the surface wetted
-WET_KS, WET_SHININESS, WET_COVER = 0.8, 180.0, 0.6
+#: wet leaves and stalks: specular strength and exponent of the (rippled) water film, share of the surface wetted,
+#: and the glint of a droplet relative to a white surface facing the flash
+WET_KS, WET_SHININESS, WET_COVER, WET_DROP = 0.8, 60.0, 0.6, 1.5
 
 # ---- frames ----
 #: probability of a dropped and of a duplicated (stale) frame

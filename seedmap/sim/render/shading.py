@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seedmap.sim.conditions import WET_COVER, WET_KS, WET_SHININESS
+from seedmap.sim.conditions import WET_COVER, WET_DROP, WET_KS, WET_SHININESS
 from seedmap.sim.config import AMBIENT, FLASH_RADIUS, LIGHT_CUTOFF, SimConfig
 from seedmap.sim.render.culling import _CamCovers
 from seedmap.sim.render.rays import _dot3, _Hits, _normalize3, _put_rows, _take, _xf
@@ -66,6 +66,13 @@ def _wet_patches(s: np.ndarray, w: np.ndarray, prim: np.ndarray) -> np.ndarray:
     p += np.sin(np.float32(2 * np.pi) * (np.float32(2.0) * w + np.float32(3.0) * s + np.float32(0.61) * leaf))
     # p in [-2, 2]; wet where it is above the quantile that leaves WET_COVER, with soft edges
     return np.clip((p - np.float32(2.0 - 4.0 * WET_COVER)) * np.float32(2.0), 0, 1)
+
+
+def _droplets(s: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Droplet glints in [0, 1] at leaf coordinates ``s``, ``w``: dots a few millimetres apart on the blade."""
+    a = np.sin(np.float32(2 * np.pi * 97.0) * s + np.float32(5.0) * w)
+    a *= np.sin(np.float32(2 * np.pi * 13.0) * w + np.float32(31.0) * s)
+    return np.clip((a - np.float32(0.85)) * np.float32(1 / 0.15), 0, 1)
 
 
 def _soil_tex_f32(world: World) -> np.ndarray:
@@ -146,6 +153,7 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     shin = np.full(m, SHIN_DEFAULT, np.float32)
     ao = np.ones(m, np.float32)
     wet = np.zeros(m, np.float32) if cfg.conditions.wet > 0 else None  # water film cover of leaves and stalks
+    drops = None  # droplet glints on the wet leaves
     # soil: flat, textured
     soil = span(CLS_SOIL, CLS_SOIL)
     if soil.stop > soil.start:
@@ -179,6 +187,8 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
             albedo[:, lf] *= np.take(_LEAF_LUT, wi) * tipdry
             if wet is not None:
                 wet[lf] = _wet_patches(s, w, np.take(h.prim, le[li]))
+                drops = np.zeros(m, np.float32)
+                drops[lf] = _droplets(s, w) * wet[lf]
         if wet is not None:
             wet[st_] = WET_COVER
     # rachis: flat normals from the panicle mesh, rotated by the wind
@@ -257,6 +267,8 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     if wet is not None:  # the water film: a sharp highlight on top of the surface's own
         spec += np.exp(np.log(nh) * np.float32(WET_SHININESS)) * (np.float32(WET_KS * cfg.conditions.wet) * wet) \
             * irr * (ndl > 0)
+        if drops is not None:  # a droplet (a small sphere) always holds a point that mirrors the flash
+            spec += drops * np.float32(WET_DROP * cfg.conditions.wet) * irr
     ndl *= irr
     direct = albedo * ndl
     direct += spec
