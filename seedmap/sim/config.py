@@ -241,10 +241,6 @@ class ImagingConfig(ConfigModel):
     exposure: float = Field(1.0, gt=0)
     #: per-frame relative std of the gain
     exposure_jitter: float = Field(0.04, ge=0, le=0.5)
-    #: horizontal motion blur from the robot's speed during ``exposure_time``
-    motion_blur: bool = False
-    #: exposure time (s), used for motion blur
-    exposure_time: float = Field(0.004, gt=0)
     #: JPEG round trip quality (None = lossless PNG images)
     jpeg_quality: int | None = Field(None, ge=10, le=100)
 
@@ -254,7 +250,9 @@ class ImagingConfig(ConfigModel):
         return drop_retired(data, {
             "flash_offset": FLASH_OFFSET, "flash_radius": FLASH_RADIUS, "ambient": AMBIENT,
             "light_cutoff": LIGHT_CUTOFF, "full_well": FULL_WELL, "read_noise": READ_NOISE,
-            "psf_sigma_px": PSF_SIGMA_PX, "vignetting": VIGNETTING, "threads": ANY})
+            "psf_sigma_px": PSF_SIGMA_PX, "vignetting": VIGNETTING, "threads": ANY,
+            # motion blur is ``conditions.blur`` (along each pixel's motion); the exposure time went with it
+            "motion_blur": False, "exposure_time": ANY})
 
 
 class SimConfig(ConfigModel):

@@ -104,7 +104,7 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
             subs = exposure_poses if c == 0 else np.stack([right_pose(P, calib.baseline) for P in exposure_poses])
             lin = blur_along_motion(lin, depth, T, subs, calib)
         g = gain if gains is None else gain * float(gains[c])
-        img = _develop(lin, calib, cfg, noise_rng, g, depth, world.cache)
+        img = _develop(lin, calib, cfg, noise_rng, g, world.cache)
         labels, inst = _instances(fs, seed_img, centers, T, calib)
         return name, (img, labels, inst, depth)
 
