@@ -181,3 +181,26 @@ def test_ladder_presets_set_strengths_and_explicit_values_win():
     for k in STRENGTHS:  # each rung is at least as hard as the one before
         vals = [LADDER[p][k] for p in LADDER]
         assert vals == sorted(vals)
+
+
+def test_culling_spheres_hold_the_bent_leaves_and_stalks():
+    """The renderer keeps a leaf or stalk only if its bounding sphere reaches the view: under the strongest wind
+    the spheres must still hold every vertex at every instant."""
+    from seedmap.sim.render.culling import _leaf_spheres, _tri_spheres
+    from seedmap.sim.wind import WindField
+
+    cfg = _cfg("world.length=0.6", "wind.leaf_amplitude_deg=45")
+    world = build_range_world(cfg, _rngs(cfg)[0])
+    world.wind_field = wf = WindField.draw(world, 3.0, np.random.default_rng(0))
+    c, r = _leaf_spheres(world)
+    sc, sr = _tri_spheres(world, "stalk_spheres", world.stalk_vertices[world.stalk_triangles])
+    moved = 0.0
+    for t in np.linspace(0, 12, 49):
+        M = world.leaf_motion(t)
+        v = np.einsum("lij,lvj->lvi", M[:, :3, :3], world.leaf_vertices) + M[:, None, :3, 3]
+        v += wf.leaf_offsets(world, np.arange(len(v)), t)
+        assert (np.linalg.norm(v - c[:, None, :], axis=2) <= r[:, None]).all()
+        sv = wf.stalk_vertices(world, t)[world.stalk_triangles]
+        assert (np.linalg.norm(sv - sc[:, None, :], axis=2) <= (sr + wf.stalk_bound)[:, None]).all()
+        moved = max(moved, float(np.abs(sv - world.stalk_vertices[world.stalk_triangles]).max()))
+    assert moved > 0.05  # the stalks did bend (3 x (3 + 1.2) cm at most)
