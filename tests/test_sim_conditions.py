@@ -204,3 +204,12 @@ def test_culling_spheres_hold_the_bent_leaves_and_stalks():
         assert (np.linalg.norm(sv - sc[:, None, :], axis=2) <= (sr + wf.stalk_bound)[:, None]).all()
         moved = max(moved, float(np.abs(sv - world.stalk_vertices[world.stalk_triangles]).max()))
     assert moved > 0.05  # the stalks did bend (3 x (3 + 1.2) cm at most)
+
+
+def test_arm_scans_refuse_field_conditions():
+    from seedmap.errors import ConfigError
+    from seedmap.sim.panicle_scan import PanicleScanConfig
+
+    assert not load_config(PanicleScanConfig, None, []).sim.conditions.any
+    with pytest.raises(ConfigError, match="field row"):
+        load_config(PanicleScanConfig, None, ["sim.conditions.wind=1"])
