@@ -17,6 +17,7 @@ Model values and sources: ``seedmap.sim.conditions`` and docs/method/conditions.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -33,6 +34,9 @@ from seedmap.sim.conditions import (
     STALK_FREQ,
     STALK_SWAY,
 )
+
+if TYPE_CHECKING:
+    from seedmap.sim.world import World
 
 N_GUST = 3  # sinusoids of the gust envelope
 FLUTTER_WAVE = 0.5  # cycles of the flutter's phase lag from a leaf's base to its tip (a wave running outwards)
@@ -66,7 +70,7 @@ class WindField:
     leaf_normal: np.ndarray  # (L, V, 3) blade normal at each rest vertex
 
     @staticmethod
-    def draw(world, strength: float, rng: np.random.Generator) -> WindField:
+    def draw(world: World, strength: float, rng: np.random.Generator) -> WindField:
         L, Pl, P = len(world.leaf_vertices), len(world.plant_top), len(world.panicles)
         az = rng.uniform(0, 2 * np.pi)
         gust = np.column_stack([rng.uniform(0.5, 1.0, N_GUST), rng.uniform(*GUST_FREQ, N_GUST),
@@ -94,7 +98,7 @@ class WindField:
         tau = t - x[..., None] / GUST_SPEED
         return np.sum(w * (0.5 + 0.5 * np.sin(2 * np.pi * f * tau + ph)), axis=-1)
 
-    def stalk_top_offset(self, world, t: float) -> np.ndarray:
+    def stalk_top_offset(self, world: World, t: float) -> np.ndarray:
         """(Pl, 3) horizontal displacement of each stalk's top (m)."""
         top = world.plant_top
         g = self.gust_at(top[:, 0], t)
@@ -102,7 +106,7 @@ class WindField:
         sway = STALK_SWAY * np.sin(2 * np.pi * f * t + ph)
         return self.strength * (GUST_STALK_TOP * g[:, None] * self.wind_dir + sway[:, None] * _unit_h(az))
 
-    def _stalk_offset(self, world, plant: np.ndarray, z: np.ndarray, top_off: np.ndarray) -> np.ndarray:
+    def _stalk_offset(self, world: World, plant: np.ndarray, z: np.ndarray, top_off: np.ndarray) -> np.ndarray:
         s = np.clip(z / np.maximum(world.plant_top[plant, 2], 1e-6), 0, 1)
         return top_off[plant] * (s * s)[..., None]
 
@@ -118,13 +122,13 @@ class WindField:
         return self.stalk_bound + self.strength * (GUST_LEAF_TIP + 1.5 * FLUTTER_TIP * 1.35)
 
     # ---- geometry at time t ----
-    def stalk_vertices(self, world, t: float) -> np.ndarray:
+    def stalk_vertices(self, world: World, t: float) -> np.ndarray:
         """(V, 3) stalk vertices bent at time ``t``."""
         off = self.stalk_top_offset(world, t)
         v = world.stalk_vertices
         return v + self._stalk_offset(world, world.stalk_plant, v[:, 2], off)
 
-    def leaf_offsets(self, world, sel: np.ndarray, t: float) -> np.ndarray:
+    def leaf_offsets(self, world: World, sel: np.ndarray, t: float) -> np.ndarray:
         """(len(sel), V, 3) non-rigid displacement of the vertices of leaves ``sel`` at time ``t``."""
         attach = world.leaf_attach[sel]
         plant = world.leaf_plant[sel]
@@ -139,7 +143,7 @@ class WindField:
         return (base[:, None, :] + self.strength * (bend[..., None] * self.wind_dir
                                                     + flut[..., None] * self.leaf_normal[sel]))
 
-    def panicle_motion(self, world, t: float) -> np.ndarray:
+    def panicle_motion(self, world: World, t: float) -> np.ndarray:
         """(P, 4, 4) motions ``D`` (``p_world = D p_rest``) of the panicles at time ``t``."""
         P = len(world.panicles)
         D = np.tile(np.eye(4), (P, 1, 1))
@@ -157,7 +161,7 @@ class WindField:
         D[:, :3, 3] = base + top_off - np.einsum("nij,nj->ni", R, base)
         return D
 
-    def _sway(self, world, t: float) -> np.ndarray:
+    def _sway(self, world: World, t: float) -> np.ndarray:
         """(P, 3, 3) the rigid sway of ``World`` with its amplitude multiplied by ``1 + gain x strength``."""
         P = len(world.panicles)
         if not world.cfg.wind.enabled:
