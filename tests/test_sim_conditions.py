@@ -213,3 +213,11 @@ def test_arm_scans_refuse_field_conditions():
     assert not load_config(PanicleScanConfig, None, []).sim.conditions.any
     with pytest.raises(ConfigError, match="field row"):
         load_config(PanicleScanConfig, None, ["sim.conditions.wind=1"])
+
+
+def test_retired_motion_blur_points_to_the_blur_condition():
+    from seedmap.errors import ConfigError
+
+    assert not _cfg("imaging.motion_blur=false", "imaging.exposure_time=0.004").conditions.any  # older configs load
+    with pytest.raises(ConfigError, match="conditions.blur"):
+        _cfg("imaging.motion_blur=true")

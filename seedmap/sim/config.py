@@ -247,6 +247,9 @@ class ImagingConfig(ConfigModel):
     @model_validator(mode="before")
     @classmethod
     def _retired(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("motion_blur") not in (None, False):
+            raise ValueError("motion_blur is no longer an imaging option: set conditions.blur (exposure time = "
+                             "blur x 5 ms, blurred along each pixel's motion)")
         return drop_retired(data, {
             "flash_offset": FLASH_OFFSET, "flash_radius": FLASH_RADIUS, "ambient": AMBIENT,
             "light_cutoff": LIGHT_CUTOFF, "full_well": FULL_WELL, "read_noise": READ_NOISE,
