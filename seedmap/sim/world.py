@@ -119,7 +119,8 @@ class World:
 
     # ---- wind ----
     def panicle_motion(self, t: float) -> np.ndarray:
-        """``(P, 4, 4)`` sway motions ``D`` at time ``t`` (s): rotation about each panicle's base."""
+        """``(P, 4, 4)`` motions ``D`` at time ``t`` (s): rotation about each panicle's base (rigid sway), or the
+        non-rigid wind's motion (``wind_field``: the panicle rides on its bending stalk)."""
         if self.wind_field is not None:
             return self.wind_field.panicle_motion(self, t)
         P = len(self.panicles)
