@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from seedmap.config import ConfigModel
 from seedmap.errors import ConfigError
 from seedmap.records import StereoCalib
+from seedmap.sim.conditions import ConditionsConfig
 
 # ---- world ----
 #: std of plant offsets across the row line (m)
@@ -240,20 +241,21 @@ class ImagingConfig(ConfigModel):
     exposure: float = Field(1.0, gt=0)
     #: per-frame relative std of the gain
     exposure_jitter: float = Field(0.04, ge=0, le=0.5)
-    #: horizontal motion blur from the robot's speed during ``exposure_time``
-    motion_blur: bool = False
-    #: exposure time (s), used for motion blur
-    exposure_time: float = Field(0.004, gt=0)
     #: JPEG round trip quality (None = lossless PNG images)
     jpeg_quality: int | None = Field(None, ge=10, le=100)
 
     @model_validator(mode="before")
     @classmethod
     def _retired(cls, data: Any) -> Any:
+        if isinstance(data, dict) and data.get("motion_blur") not in (None, False):
+            raise ValueError("motion_blur is no longer an imaging option: set conditions.blur (exposure time = "
+                             "blur x 5 ms, blurred along each pixel's motion)")
         return drop_retired(data, {
             "flash_offset": FLASH_OFFSET, "flash_radius": FLASH_RADIUS, "ambient": AMBIENT,
             "light_cutoff": LIGHT_CUTOFF, "full_well": FULL_WELL, "read_noise": READ_NOISE,
-            "psf_sigma_px": PSF_SIGMA_PX, "vignetting": VIGNETTING, "threads": ANY})
+            "psf_sigma_px": PSF_SIGMA_PX, "vignetting": VIGNETTING, "threads": ANY,
+            # motion blur is ``conditions.blur`` (along each pixel's motion); the exposure time went with it
+            "motion_blur": False, "exposure_time": ANY})
 
 
 class SimConfig(ConfigModel):
@@ -269,6 +271,7 @@ class SimConfig(ConfigModel):
     camera: CameraConfig = Field(default_factory=CameraConfig)
     motion: MotionConfig = Field(default_factory=MotionConfig)
     imaging: ImagingConfig = Field(default_factory=ImagingConfig)
+    conditions: ConditionsConfig = Field(default_factory=ConditionsConfig)
 
     @property
     def length(self) -> float:

@@ -77,6 +77,14 @@ class PanicleScanConfig(ConfigModel):
             return deep_merge(SCAN_SIM_DEFAULTS, v)
         return v
 
+    @field_validator("sim")
+    @classmethod
+    def _no_field_conditions(cls, v):  # noqa: ANN001, ANN206 - pydantic validator
+        if v.conditions.any:
+            raise ValueError("conditions are those of a field row (seedmap simulate range); an arm scan has its "
+                             "own error model (arm.errors)")
+        return v
+
     @field_validator("exposure")
     @classmethod
     def _positive(cls, v):  # noqa: ANN001, ANN206 - pydantic validator

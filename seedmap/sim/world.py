@@ -11,6 +11,7 @@ leaves sway rigidly about their base (wind); ``World.panicle_motion(t)`` gives t
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -109,10 +110,19 @@ class World:
     soil_color: np.ndarray = field(default_factory=lambda: np.array([0.26, 0.19, 0.13]))
     has_soil: bool = True
     cache: dict = field(default_factory=dict, repr=False)  # renderer's per-panicle BVHs
+    # plants (for the non-rigid wind of ``seedmap.sim.wind``): top of each stalk, owner of each part
+    plant_top: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (Pl, 3) stalk top (m)
+    stalk_plant: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (V,) per stalk vertex
+    leaf_plant: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (L,)
+    panicle_plant: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (P,)
+    wind_field: Any = None  # a ``seedmap.sim.wind.WindField`` when the non-rigid wind is on, else None
 
     # ---- wind ----
     def panicle_motion(self, t: float) -> np.ndarray:
-        """``(P, 4, 4)`` sway motions ``D`` at time ``t`` (s): rotation about each panicle's base."""
+        """``(P, 4, 4)`` motions ``D`` at time ``t`` (s): rotation about each panicle's base (rigid sway), or the
+        non-rigid wind's motion (``wind_field``: the panicle rides on its bending stalk)."""
+        if self.wind_field is not None:
+            return self.wind_field.panicle_motion(self, t)
         P = len(self.panicles)
         D = np.tile(np.eye(4), (P, 1, 1))
         if P == 0 or not self.cfg.wind.enabled:
@@ -122,6 +132,8 @@ class World:
         return _sway_transforms(sway, base, t)
 
     def leaf_motion(self, t: float) -> np.ndarray:
+        """``(L, 4, 4)`` rigid sway of each leaf about its attachment at time ``t`` (s); the non-rigid part
+        (``wind_field``) is added to the vertices by the renderer."""
         L = len(self.leaf_attach)
         if L == 0 or not self.cfg.wind.enabled:
             return np.tile(np.eye(4), (L, 1, 1))
@@ -347,6 +359,10 @@ class _Parts:
     stalk_v: list = field(default_factory=list)
     stalk_f: list = field(default_factory=list)
     stalk_c: list = field(default_factory=list)
+    plant_top: list = field(default_factory=list)
+    stalk_plant: list = field(default_factory=list)
+    leaf_plant: list = field(default_factory=list)
+    panicle_plant: list = field(default_factory=list)
     n_seeds: int = 0
     n_stalk_v: int = 0
 
@@ -439,7 +455,11 @@ def _add_plant(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, x: float
     sc = np.array([0.30, 0.32, 0.14]) * rng.uniform(0.8, 1.2) * (1 + rng.normal(0, 0.05, 3))
     parts.stalk_c.append(np.tile(sc, (len(v), 1)))
     parts.n_stalk_v += len(v)
+    plant = len(parts.plant_top)
+    parts.plant_top.append(pts[-1])
+    parts.stalk_plant.append(np.full(len(v), plant))
     if with_panicle:
+        parts.panicle_plant.append(plant)
         _add_panicle(parts, rng, cfg, top, axis)
     # leaves, alternating on two sides of the stalk, attached below the panicle
     n_leaves = int(rng.integers(wc.leaves_min, wc.leaves_max + 1))
@@ -460,6 +480,7 @@ def _add_plant(parts: _Parts, rng: np.random.Generator, cfg: SimConfig, x: float
             v[:, 1] = attach[1] + (v[:, 1] - attach[1]) * (y_min - attach[1]) / (v[:, 1].min() - attach[1])
         parts.leaves.append(v)
         parts.leaf_attach.append(attach)
+        parts.leaf_plant.append(plant)
         lc = LEAF_COLORS[min(3, int(rng.integers(0, 3)) + (1 if frac < 0.35 and rng.uniform() < 0.5 else 0))]
         parts.leaf_color.append(lc * rng.uniform(0.8, 1.2) * (1 + rng.normal(0, 0.06, 3)))
 
@@ -503,7 +524,10 @@ def _assemble(kind: str, cfg: SimConfig, parts: _Parts, rng: np.random.Generator
         glume_extent=extent, seed_ao=ao, panicles=parts.panicles, leaf_vertices=leaves, leaf_triangles=lf,
         leaf_uv=luv, leaf_attach=attach, leaf_color=np.clip(lcol, 0.01, 0.9),
         leaf_sway=_sway_params(rng, len(attach), cfg.wind.leaf_amplitude_deg), stalk_vertices=sv,
-        stalk_triangles=sf, stalk_color=scol, soil_texture=_soil_texture(rng), has_soil=has_soil)
+        stalk_triangles=sf, stalk_color=scol, soil_texture=_soil_texture(rng), has_soil=has_soil,
+        plant_top=np.array(parts.plant_top, float).reshape(-1, 3),
+        stalk_plant=np.concatenate(parts.stalk_plant) if parts.stalk_plant else np.zeros(0, np.int64),
+        leaf_plant=np.array(parts.leaf_plant, np.int64), panicle_plant=np.array(parts.panicle_plant, np.int64))
 
 
 def build_range_world(cfg: SimConfig, rng: np.random.Generator) -> World:

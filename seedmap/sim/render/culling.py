@@ -23,7 +23,7 @@ def _tri_spheres(world: World, key: str, tri: np.ndarray) -> tuple[np.ndarray, n
 def _leaf_spheres(world: World) -> tuple[np.ndarray, np.ndarray]:
     """Per leaf, a sphere holding it at every instant: the rest bounding sphere grown by the largest
     sway displacement (a rotation by at most ``theta`` about the attachment moves a vertex at most
-    ``theta |v - attach|``)."""
+    ``theta |v - attach|``), and by the non-rigid wind's bound (``WindField.leaf_bound``)."""
     got = world.cache.get("leaf_spheres")
     if got is None:
         v = world.leaf_vertices
@@ -33,6 +33,8 @@ def _leaf_spheres(world: World) -> tuple[np.ndarray, np.ndarray]:
             amp = np.abs(world.leaf_sway[..., 0]).sum(axis=2)  # (L, 2) bound of each tilt angle
             theta = np.linalg.norm(amp, axis=1)
             r = r + theta * np.linalg.norm(v - world.leaf_attach[:, None, :], axis=2).max(axis=1)
+        if world.wind_field is not None:
+            r = r + world.wind_field.leaf_bound
         got = world.cache["leaf_spheres"] = (c, r + 1e-4)
     return got
 

@@ -122,15 +122,20 @@ class _FrameScene:
                 keep |= _sphere_in_frustum(c, r + margin, T, calib)
             return keep
 
+        wf = world.wind_field
         if len(world.stalk_vertices):
-            vn = world.cache.get("stalk_normals")
-            if vn is None:
-                vn = world.cache["stalk_normals"] = vertex_normals(world.stalk_vertices, world.stalk_triangles)
             sc, sr = _tri_spheres(world, "stalk_spheres", world.stalk_vertices[world.stalk_triangles])
-            keep = in_view(sc, sr)
+            keep = in_view(sc, sr if wf is None else sr + wf.stalk_bound)
             if keep.any():
-                add(world.stalk_vertices, world.stalk_triangles[keep], vn, world.stalk_color,
-                    np.zeros((len(world.stalk_vertices), 2)), CLS_STALK)
+                if wf is None:
+                    sv = world.stalk_vertices
+                    vn = world.cache.get("stalk_normals")
+                    if vn is None:
+                        vn = world.cache["stalk_normals"] = vertex_normals(sv, world.stalk_triangles)
+                else:  # bent by the wind
+                    sv = wf.stalk_vertices(world, t)
+                    vn = vertex_normals(sv, world.stalk_triangles)
+                add(sv, world.stalk_triangles[keep], vn, world.stalk_color, np.zeros((len(sv), 2)), CLS_STALK)
         if len(world.leaf_vertices):
             lc, lr = _leaf_spheres(world)
             sel = np.nonzero(in_view(lc, lr))[0]
@@ -138,6 +143,8 @@ class _FrameScene:
             if nL:
                 M = world.leaf_motion(t)[sel]
                 lv = np.einsum("lij,lvj->lvi", M[:, :3, :3], world.leaf_vertices[sel]) + M[:, None, :3, 3]
+                if wf is not None:
+                    lv += wf.leaf_offsets(world, sel, t)
                 nv = lv.shape[1]
                 lf = world.leaf_triangles
                 allf = (lf[None] + (np.arange(nL) * nv)[:, None, None]).reshape(-1, 3)

@@ -6,13 +6,12 @@ import numpy as np
 
 from seedmap.records import StereoCalib
 from seedmap.sim.config import FULL_WELL, PSF_SIGMA_PX, READ_NOISE, VIGNETTING, SimConfig
-from seedmap.sim.render.shading import REF_DISTANCE
 
 _GAMMA_LUT = np.round(255.0 * np.linspace(0, 1, 4096) ** (1 / 2.2)).astype(np.uint8)
 
 
 def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random.Generator, gain: float,
-             depth: np.ndarray | None, cache: dict) -> np.ndarray:
+             cache: dict) -> np.ndarray:
     """Sensor + ISP model: gain, vignetting, blur, noise, gamma, 8-bit (and optional JPEG). ``lin`` (H, W, 3)
     float32 is overwritten."""
     import cv2
@@ -27,12 +26,6 @@ def _develop(lin: np.ndarray, calib: StereoCalib, cfg: SimConfig, rng: np.random
         vig = cache[key] = (1 - VIGNETTING * rn2).astype(np.float32)[..., None]
     img = lin  # (the caller's buffer, scaled in place)
     img *= vig * np.float32(gain * FULL_WELL)  # electrons
-    if ic.motion_blur:
-        z = np.nanmedian(depth) if depth is not None and np.isfinite(depth).any() else REF_DISTANCE
-        blur_px = calib.fx * cfg.motion.speed * ic.exposure_time / max(float(z), 0.05)
-        k = int(round(blur_px))
-        if k >= 2:
-            img = cv2.blur(img, (k, 1))
     img = cv2.GaussianBlur(img, (0, 0), PSF_SIGMA_PX)
     np.maximum(img, 0, out=img)
     # shot + read noise as one Gaussian of the combined variance

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from seedmap.sim.conditions import WET_COVER, WET_DROP, WET_KS, WET_SHININESS
 from seedmap.sim.config import AMBIENT, FLASH_RADIUS, LIGHT_CUTOFF, SimConfig
 from seedmap.sim.render.culling import _CamCovers
 from seedmap.sim.render.rays import _dot3, _Hits, _normalize3, _put_rows, _take, _xf
@@ -20,6 +21,7 @@ KS_SOIL, KS_STALK, KS_LEAF, KS_RACHIS = 0.01, 0.06, 0.10, 0.04
 SHIN_DEFAULT, SHIN_LEAF, SHIN_SEED = 20.0, 25.0, 45.0
 RACHIS_ALBEDO = (0.30, 0.26, 0.13)
 _LEAF_LUT_N = 8192  # samples of the leaf's across-pattern (midrib x veins) over w in [0, 1]
+DROP_DENSITY, DROP_RADIUS = 0.4, 0.18  # share of leaf cells holding a droplet; glint radius (cell widths)
 
 
 def _leaf_pattern_lut() -> np.ndarray:
@@ -55,6 +57,38 @@ def _soil_albedo(world: World, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     b += (tex[j1, i1] - b) * fu
     a += (b - a) * fv
     return world.soil_color.astype(np.float32)[:, None] * a[None, :]
+
+
+def _wet_patches(s: np.ndarray, w: np.ndarray, prim: np.ndarray) -> np.ndarray:
+    """Water film cover in [0, 1] of leaf points at along/across coordinates ``s``, ``w`` on triangle ``prim``:
+    smooth patches (two waves along and across the blade, a phase per leaf) over about ``WET_COVER`` of it."""
+    leaf = (prim // 64).astype(np.float32)  # 64 triangles per leaf
+    p = np.sin(np.float32(2 * np.pi) * (np.float32(7.0) * s + np.float32(0.37) * leaf))
+    p += np.sin(np.float32(2 * np.pi) * (np.float32(2.0) * w + np.float32(3.0) * s + np.float32(0.61) * leaf))
+    # p in [-2, 2]; wet where it is above the quantile that leaves WET_COVER, with soft edges
+    return np.clip((p - np.float32(2.0 - 4.0 * WET_COVER)) * np.float32(2.0), 0, 1)
+
+
+def _hash01(a: np.ndarray) -> np.ndarray:
+    """A cheap deterministic pseudo-random number in [0, 1) per element of ``a`` (float32)."""
+    x = np.sin(a) * np.float32(43758.5453)
+    return x - np.floor(x)
+
+
+def _droplets(s: np.ndarray, w: np.ndarray, prim: np.ndarray) -> np.ndarray:
+    """Droplet glints in [0, 1] at leaf coordinates ``s``, ``w`` on triangle ``prim``: the blade is divided into
+    cells of about 7 x 5 mm; a cell holds a droplet with probability ``DROP_DENSITY``, at a random place in it, a
+    glint about 1 mm across."""
+    leaf = (prim // 64).astype(np.float32)  # 64 triangles per leaf
+    cs = s * np.float32(97.0)
+    cw = w * np.float32(13.0)
+    i = np.floor(cs)
+    j = np.floor(cw)
+    key = i * np.float32(12.9898) + j * np.float32(78.233) + leaf * np.float32(37.719)
+    du = cs - i - (np.float32(0.25) + np.float32(0.5) * _hash01(key + np.float32(1.7)))
+    dv = cw - j - (np.float32(0.25) + np.float32(0.5) * _hash01(key + np.float32(4.1)))
+    g = np.clip(np.float32(1.0) - (du * du + dv * dv) * np.float32(1 / DROP_RADIUS ** 2), 0, 1)
+    return g * (_hash01(key) < np.float32(DROP_DENSITY))
 
 
 def _soil_tex_f32(world: World) -> np.ndarray:
@@ -134,6 +168,8 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     ks = np.empty(m, np.float32)
     shin = np.full(m, SHIN_DEFAULT, np.float32)
     ao = np.ones(m, np.float32)
+    wet = np.zeros(m, np.float32) if cfg.conditions.wet > 0 else None  # water film cover of leaves and stalks
+    drops = None  # droplet glints on the wet leaves
     # soil: flat, textured
     soil = span(CLS_SOIL, CLS_SOIL)
     if soil.stop > soil.start:
@@ -165,6 +201,12 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
             tipdry *= np.float32(0.25)
             tipdry += np.float32(1.0)
             albedo[:, lf] *= np.take(_LEAF_LUT, wi) * tipdry
+            if wet is not None:
+                wet[lf] = _wet_patches(s, w, np.take(h.prim, le[li]))
+                drops = np.zeros(m, np.float32)
+                drops[lf] = _droplets(s, w, np.take(h.prim, le[li])) * wet[lf]
+        if wet is not None:
+            wet[st_] = WET_COVER
     # rachis: flat normals from the panicle mesh, rotated by the wind
     rm = span(CLS_RACHIS, CLS_RACHIS)
     if rm.stop > rm.start:
@@ -238,6 +280,11 @@ def _shade_parts(fs: _FrameScene, o: np.ndarray, d: np.ndarray, h: _Hits, light:
     spec *= ks
     spec *= irr
     spec *= ndl > 0
+    if wet is not None:  # the water film: a sharp highlight on top of the surface's own
+        spec += np.exp(np.log(nh) * np.float32(WET_SHININESS)) * (np.float32(WET_KS * cfg.conditions.wet) * wet) \
+            * irr * (ndl > 0)
+        if drops is not None:  # a droplet (a small sphere) always holds a point that mirrors the flash
+            spec += drops * np.float32(WET_DROP * cfg.conditions.wet) * irr
     ndl *= irr
     direct = albedo * ndl
     direct += spec

@@ -11,6 +11,7 @@ from seedmap.records import StereoCalib
 from seedmap.sim.config import FLASH_OFFSET, SimConfig
 from seedmap.sim.render import shadows
 from seedmap.sim.render.antialias import _antialias
+from seedmap.sim.render.blur import blur_along_motion
 from seedmap.sim.render.labels import _instances
 from seedmap.sim.render.rays import _O3D_THREADS, _camera_dirs, _object_key, _xf
 from seedmap.sim.render.scene import _FrameScene
@@ -71,11 +72,15 @@ def right_pose(T_world_left: np.ndarray, baseline: float) -> np.ndarray:
 
 
 def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg: SimConfig,
-                  rng: np.random.Generator, t: float) -> RenderedStereo:
+                  rng: np.random.Generator, t: float, *, gains: np.ndarray | None = None,
+                  exposure_poses: np.ndarray | None = None) -> RenderedStereo:
     """Render the rectified pair whose LEFT camera is at ``T_world_cam`` with the world at time ``t`` (s).
 
     Works for any pose (range robot, arm around a single panicle). Random effects of this frame
-    (exposure jitter, flash sampling, sensor noise) are drawn from ``rng``.
+    (exposure jitter, flash sampling, sensor noise) are drawn from ``rng``. Field conditions
+    (``seedmap.sim.capture``): ``gains`` (2,) multiply the left and right camera's gain (flash flicker,
+    auto-exposure); ``exposure_poses`` (K, 4, 4), the left camera over the exposure interval, blur each image
+    along its pixels' motion (``render.blur``).
     """
     T_l = np.asarray(T_world_cam, float)
     T_r = right_pose(T_l, calib.baseline)
@@ -86,16 +91,20 @@ def render_stereo(world: World, T_world_cam: np.ndarray, calib: StereoCalib, cfg
     centers = world.seed_centers_at(t, fs.D)
     # one generator per camera, so the result does not depend on whether they run in parallel
     cam_rngs = rng.spawn(2)
-    jobs = (("left", T_l, cam_rngs[0]), ("right", T_r, cam_rngs[1]))
+    jobs = (("left", T_l, cam_rngs[0], 0), ("right", T_r, cam_rngs[1], 1))
 
     def one(job):
-        name, T, crng = job
+        name, T, crng, c = job
         _O3D_THREADS.n = 1 if CAMERA_THREADS > 1 else 0
         # flash sampling and sensor noise from separate streams: the noise image does not depend on
         # how many flash samples the shading drew
         shade_rng, noise_rng = crng.spawn(2)
         lin, seed_img, depth, _ = _render_camera(fs, T, calib, cfg, shade_rng, light, light_axes)
-        img = _develop(lin, calib, cfg, noise_rng, gain, depth, world.cache)
+        if exposure_poses is not None:
+            subs = exposure_poses if c == 0 else np.stack([right_pose(P, calib.baseline) for P in exposure_poses])
+            lin = blur_along_motion(lin, depth, T, subs, calib)
+        g = gain if gains is None else gain * float(gains[c])
+        img = _develop(lin, calib, cfg, noise_rng, g, world.cache)
         labels, inst = _instances(fs, seed_img, centers, T, calib)
         return name, (img, labels, inst, depth)
 
