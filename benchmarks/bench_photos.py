@@ -8,8 +8,12 @@ light and layout; false positives per megapixel on photos without seeds. Sets co
 
     seedmap simulate photos --out data/ph_heldout --count 60 --seed 300 --split heldout
     seedmap simulate photos --out data/ph_seen --count 30 --seed 400
+    seedmap simulate photos --out data/ph_setup_500 --count 30 --seed 500 --split heldout --set setup=true  # 500-503
     .venv/bin/python benchmarks/bench_photos.py --heldout data/ph_heldout --seen data/ph_seen \
-        --out benchmarks/results/photos.json
+        --setup data/ph_setup_500 --setup data/ph_setup_501 --out benchmarks/results/photos.json
+
+Fine-tunes run on the mixed held-out set (many setups in ten photos) and on each ``--setup`` set (one user's setup:
+ten photos of it train, the other twenty are scored).
 
 ``--compare-domain field`` also scores the field network on the same photos (what the photos got before).
 """
