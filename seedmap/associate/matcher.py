@@ -68,12 +68,20 @@ class SeedMatcher:
         self._remember(f.kp_left, sums[0])
         return f
 
-    def features(self, frame: StereoFrame) -> FrameFeatures:
-        """Detect the seeds of both images and match them left<->right."""
+    def detect_frame(self, frame: StereoFrame) -> StereoDetections:
+        """The detector's seeds of both images (depends on this frame alone: it may run ahead, in another
+        thread, while the previous frame is associated)."""
         if self.detector is None:
             raise SeedmapError("the seeds matcher needs a detector to turn images into keypoints")
+        return self.detector.detect_stereo(frame)
+
+    def features(self, frame: StereoFrame, det: StereoDetections | None = None) -> FrameFeatures:
+        """Detect the seeds of both images (unless ``det``, :meth:`detect_frame`'s result, is given) and match
+        them left<->right."""
+        if det is not None:
+            return self.features_from_detections(det)
         t0 = time.perf_counter()
-        det = self.detector.detect_stereo(frame)
+        det = self.detect_frame(frame)
         t_det = (time.perf_counter() - t0) * 1e3
         f = self.features_from_detections(det)
         f.timings_ms["detect"] = t_det

@@ -95,6 +95,8 @@ class SlamConfig(ConfigModel):
     features: dict[str, Any] = Field(default_factory=dict)
     #: process at most this many frames (None = all)
     max_frames: int | None = Field(None, ge=1)
+    #: frames decoded and detected ahead in a background thread while the current one is associated (0 = none)
+    prefetch_frames: int = Field(1, ge=0, le=8)
     #: the run's matcher (seeds | sift | orb | akaze | surf; None: seeds; --matcher overrides it)
     matcher: str | None = None
     #: the run's seed detector (None: the best real detector, `fast`; `gt` is the ORACLE; --detector overrides it)

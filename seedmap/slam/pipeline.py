@@ -28,6 +28,7 @@ from seedmap.eval.slam_metrics import SlamMetrics, compute_slam_metrics
 from seedmap.progress import Progress
 from seedmap.records import Trajectory
 from seedmap.slam.config import SlamConfig
+from seedmap.slam.stream import Prefetch, prepare
 
 __all__ = ["SlamResult", "SlamMetrics", "run_slam", "range_length_of"]
 
@@ -124,17 +125,18 @@ def run_slam(
 
     rows: list[dict] = []
     timings: dict[str, list[float]] = {}
+    # decode + detection of frame i+1 overlap the association of frame i (seedmap.slam.stream)
+    detect = getattr(m, "detect_frame", None)
+    frames = Prefetch(prepare(ds.__getitem__, detect), range(n), cfg.prefetch_frames)
     t_all = time.perf_counter()
     with Progress(n, f"slam {matcher}", "frame", progress) as bar:
-        for i in range(n):
-            t0 = time.perf_counter()
-            frame = ds[i]
-            t_load = (time.perf_counter() - t0) * 1e3
+        for i, p in enumerate(frames):
+            frame = p.frame
             if i == 0:
                 check_stereo_order(frame.left, frame.right, dataset)
-            feats = m.features(frame)
+            feats = m.features(frame, p.det) if detect is not None else m.features(frame)
             res = slam.register_frame(feats)
-            tm = {"load": t_load, **feats.timings_ms, **res.timings_ms}
+            tm = {**p.timings_ms, **feats.timings_ms, **res.timings_ms}
             for k, v in tm.items():
                 timings.setdefault(k, []).append(v)
             rows.append({"frame": i, "keypoints_left": len(feats.kp_left), "keypoints_right": len(feats.kp_right),
@@ -143,6 +145,7 @@ def run_slam(
             rlog.frame(frame, feats, res, slam)
             bar.advance()
             if not res.ok:
+                frames.close()
                 break
     t0 = time.perf_counter()
     traj, values, backend_name = slam.finalize()
