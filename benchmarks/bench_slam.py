@@ -7,9 +7,13 @@ Writes benchmarks/results/bench_slam.json:
   the SLAM default), on synthetic panicles at the default 1434 px width;
 * frames/s of association + motion + back-end (iSAM2) per frame on a short synthetic sequence;
 * the baseline measured in the same run: one SIFT detection + brute-force kNN match (cv2) of the
-  same stereo pair (seeds drawn as blobs); results are reported as ratios to it.
+  same stereo pair (seeds drawn as blobs); results are reported as ratios to it;
+* with ``--dataset DIR`` (repeatable): ``stages``, the whole ``seedmap slam`` pipeline on the dataset's images,
+  ms per frame per stage (see :mod:`bench_slam_stages`) for ``fast`` seeds with and without the prefetch thread,
+  the ORB + brute-force baseline and ORB-SLAM3 (when ``pyorbslam3`` and its vocabulary are there), one after the
+  other in the same run.
 
-Run: ``.venv/bin/python benchmarks/bench_slam.py [--quick]``.
+Run: ``.venv/bin/python benchmarks/bench_slam.py [--quick] [--dataset DIR ...]``.
 """
 
 from __future__ import annotations
@@ -85,6 +89,11 @@ def _row(res: dict, mode: str, m: SeedMatcher, fa, fb, b: StereoDetections, t_st
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="fewer repetitions and frames")
+    ap.add_argument("--dataset", action="append", type=Path, default=[],
+                    help="also time the whole pipeline per stage on this dataset (repeatable)")
+    ap.add_argument("--orb-vocab", type=Path, default=None,
+                    help="ORB-SLAM3 vocabulary (default: $PYORBSLAM3_VOCAB or pyorbslam3's cache)")
+    ap.add_argument("--repeats", type=int, default=1, help="whole-pipeline runs per method (best kept)")
     args = ap.parse_args()
     reps = 1 if args.quick else 3
     rng = np.random.default_rng(0)
@@ -149,6 +158,10 @@ def main() -> None:
                "ms_per_frame_vs_sift_ratio": (dt / max(ok, 1)) / t_sift}
         res.setdefault("pipeline", []).append(row)
         print(row, flush=True)
+    if args.dataset:
+        from bench_slam_stages import stage_rows
+
+        res["stages"] = [stage_rows(d, args.orb_vocab, args.repeats) for d in args.dataset]
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(res, indent=2) + "\n")
     print(f"wrote {OUT}")

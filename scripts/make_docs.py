@@ -233,7 +233,31 @@ def page_slam(cmds: dict[str, str]) -> tuple[str, str] | None:
         body += ["\n**Association + motion + iSAM2 back-end, per frame**\n",
                  table(["association", "keypoints / image", "frames tracked", "wall ms", "CPU ms", "wall / SIFT"],
                        prows)]
+    for st in d.get("stages", []):
+        body += [f"\n**Whole pipeline per stage on `{st['dataset']}`** (wall ms per frame, {st['cpu_count']} cores; "
+                 "with the prefetch thread decode and detection overlap the rest, so the stages add up to more than "
+                 f"the wall time; ORB-SLAM3: {st['orbslam3']})\n", _stage_table(st)]
     return "Semantic association and SLAM back-end speed", "\n".join(body)
+
+
+_STAGE_COLS = ("decode", "detection", "stereo", "temporal", "motion", "backend")
+
+
+def _stage_table(st: dict) -> str:
+    """One row per method of a ``bench_slam.json`` ``stages`` entry, wall ratio to the ORB + BF front-end."""
+    base = next((r["wall_ms_per_frame"] for r in st["rows"] if r["method"] == "ORB + BF"), None)
+    rows = []
+    for r in st["rows"]:
+        sm = r["stages_ms"]
+        cells = [num(sm.get(c)) if c in sm else "–" for c in _STAGE_COLS]
+        if "tracking" in sm:
+            cells[2] = f"tracking {num(sm['tracking'])}"
+        tracked = "n/a" if r.get("frames_tracked") is None else f"{r['frames_tracked']}/{r['frames']}"
+        rows.append([r["method"], tracked, *cells, num(r["final_ms_per_frame"]), num(r["wall_ms_per_frame"]),
+                     num(r["cpu_ms_per_frame"]), num(r["wall_ms_per_frame"] / base) if base else "n/a",
+                     num(None if r.get("ate_rmse_m") is None else 1000 * r["ate_rmse_m"])])
+    return table(["method", "frames tracked", *_STAGE_COLS, "final opt.", "wall", "CPU", "wall / ORB + BF",
+                  "ATE (mm)"], rows)
 
 
 _RECON_METRICS = [("pose_trans_mm_mean", "pose error (mm)"), ("pose_rot_deg_mean", "rotation error (°)"),

@@ -57,18 +57,30 @@ def slam_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     rerun: Optional[Path] = typer.Option(None, "--rerun", help="Also record the run into this rerun .rrd file "
                                          "(view it with `rerun FILE.rrd`)."),
+    follow: bool = typer.Option(False, "--follow", help="Live: DATASET is a folder a robot is writing (seedmap "
+                                "layout; a frame counts once its times.txt line and both PNGs are complete); "
+                                "--out gets the trajectory per frame and the map as it grows; stops after "
+                                "--idle-timeout without a new frame or on Ctrl-C, with complete outputs."),
+    idle_timeout: float = typer.Option(10.0, "--idle-timeout", min=0.1, help="--follow: stop after this many "
+                                       "seconds without a new frame."),
 ) -> None:
     """Semantic stereo SLAM: trajectory, seed map and metrics (MDM, ATE, RPE) into --out."""
     from seedmap.slam.pipeline import run_slam
 
     cfg = slam_config(config, set_)
     res = run_slam(dataset, out, matcher=matcher, detector=detector, config=cfg, overwrite=overwrite,
-                   progress=not quiet, rerun=rerun, inputs=[config] if config is not None else [])
+                   progress=not quiet, rerun=rerun, inputs=[config] if config is not None else [],
+                   follow=follow, idle_timeout_s=idle_timeout)
     from seedmap.detect import detector_label
 
     m = res.metrics
     det = f", detector {detector_label(m.detector, m.oracle_detector)}" if m.detector else ""
     print_slam_metrics(m, f"seedmap slam: {dataset.name} ({m.matcher}{det})")
+    if follow:
+        why = {"idle": f"no new frame for {idle_timeout:g} s", "interrupted": "Ctrl-C", "lost": "track lost",
+               "max_frames": "max_frames reached"}[res.stop_reason]
+        typer.echo(f"followed {dataset}: {m.frames_tracked} frames processed, stopped by {why}; at most "
+                   f"{res.max_waiting} frames waiting")
     typer.echo(f"results in {out} (report.html)" + (f", rerun recording {rerun}" if rerun else ""))
 
 

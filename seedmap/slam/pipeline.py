@@ -12,10 +12,15 @@ batch-optimise, then write everything atomically into ``out``:
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
+import logging
+import signal
+import threading
 import time
 from dataclasses import asdict, dataclass, field
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +47,11 @@ class SlamResult:
     out: Path | None = None
     #: per-frame surviving match counts: keys ``frame``, ``stereo``, ``temporal``, ``inliers``
     matches_per_frame: dict[str, np.ndarray] = field(default_factory=dict)
+    #: why a ``follow`` run ended: ``idle`` (no new frame within the timeout), ``interrupted`` (Ctrl-C),
+    #: ``lost`` or ``max_frames``; None for a dataset run
+    stop_reason: str | None = None
+    #: ``follow``: the most frames that were waiting (written but not yet processed) at any frame
+    max_waiting: int = 0
 
 
 def range_length_of(dataset: str | Path) -> float | None:
@@ -75,13 +85,19 @@ def run_slam(
     rerun: Path | None = None,
     html_report: bool = True,
     inputs: Sequence[str | Path] = (),
+    follow: bool = False,
+    idle_timeout_s: float = 10.0,
 ) -> SlamResult:
     """Run the SLAM pipeline on ``dataset`` and write the results into ``out`` (None: no files).
 
     ``rerun``: also record the run (images, matches, poses, growing seed map) into this ``.rrd`` file.
     ``html_report``: also write ``report.html`` (the benchmark skips it: ~2.7 s CPU per run).
     ``inputs``: more files the command read (``--config``); ``out`` and ``rerun`` are never one of them or the
-    dataset (see :mod:`seedmap.outputs`)."""
+    dataset (see :mod:`seedmap.outputs`).
+    ``follow``: ``dataset`` is a folder a robot is writing (:mod:`seedmap.slam.follow`): frames are processed as
+    they become complete, ``out`` gets the online trajectory per frame and the map every few frames, and the run
+    ends after ``idle_timeout_s`` without a new frame or on Ctrl-C, with the complete outputs of what it
+    processed (no ground truth is read)."""
     from seedmap.associate import make_matcher
     from seedmap.io.stereo_order import check_stereo_order
     from seedmap.io.trajectory import gt_overlapping
@@ -102,16 +118,26 @@ def run_slam(
         from seedmap.viz.rerun_log import check_rrd_path
 
         check_rrd_path(rerun, [*ins, *([out] if out is not None else [])], overwrite)
-    ds = cfg.dataset.open(dataset)
-    calib = ds.calib
-    gt = gt_overlapping(ds.timestamps, ds.gt_trajectory(), dataset)
-    n = len(ds) if cfg.max_frames is None else min(len(ds), cfg.max_frames)
-    if n == 0:
-        raise SeedmapError("dataset has no frames", dataset)
+    stop = threading.Event()  # follow: set by Ctrl-C (between frames), by the idle timeout or at the end
+    if follow:
+        from seedmap.slam.follow import FolderFollower
+
+        ds = FolderFollower(dataset, idle_timeout_s, stop)
+        calib, gt, n = ds.calib, None, cfg.max_frames
+        indices = ds.indices() if n is None else itertools.islice(ds.indices(), n)
+        load = ds.load
+    else:
+        ds = cfg.dataset.open(dataset)
+        calib = ds.calib
+        gt = gt_overlapping(ds.timestamps, ds.gt_trajectory(), dataset)
+        n = len(ds) if cfg.max_frames is None else min(len(ds), cfg.max_frames)
+        if n == 0:
+            raise SeedmapError("dataset has no frames", dataset)
+        indices, load = range(n), ds.__getitem__
     det = _detector_for(detector, Path(dataset), cfg.detect) if matcher.strip().lower() == "seeds" else None
     m = make_matcher(matcher, calib, detector=det, cfg=cfg)
     first = np.eye(4)  # the prior on the first pose: GT at the first frame's time when GT covers it
-    if gt is not None and len(gt):
+    if gt is not None and len(gt) and not follow:
         from seedmap.eval.slam_metrics import sync_by_time
 
         dt = float(np.median(np.diff(ds.timestamps))) if len(ds.timestamps) > 1 else 2e-3
@@ -127,9 +153,12 @@ def run_slam(
     timings: dict[str, list[float]] = {}
     # decode + detection of frame i+1 overlap the association of frame i (seedmap.slam.stream)
     detect = getattr(m, "detect_frame", None)
-    frames = Prefetch(prepare(ds.__getitem__, detect), range(n), cfg.prefetch_frames)
+    frames = Prefetch(prepare(load, detect), indices, cfg.prefetch_frames, stop=stop)
+    live = _live_writer(out, overwrite) if follow and out is not None else None
+    stop_reason = None
+    max_waiting = 0
     t_all = time.perf_counter()
-    with Progress(n, f"slam {matcher}", "frame", progress) as bar:
+    with Progress(n, f"slam {matcher}", "frame", progress) as bar, _stop_on_ctrl_c(stop, follow) as ctrl_c:
         for i, p in enumerate(frames):
             frame = p.frame
             if i == 0:
@@ -142,11 +171,29 @@ def run_slam(
             rows.append({"frame": i, "keypoints_left": len(feats.kp_left), "keypoints_right": len(feats.kp_right),
                          "stereo": res.n_stereo, "temporal": res.n_temporal, "inliers": res.n_inliers,
                          "landmarks_seen": res.n_landmarks_seen, "ok": int(res.ok)})
+            if follow:
+                waiting = ds.announced() - (i + 1)
+                rows[-1]["waiting"] = waiting
+                _report_behind(waiting, max_waiting, bar)
+                max_waiting = max(max_waiting, waiting)
+                if live is not None and res.ok:
+                    live.frame(frame.timestamp, res.T_world_cam, slam)
             rlog.frame(frame, feats, res, slam)
             bar.advance()
             if not res.ok:
+                stop_reason = "lost"
                 frames.close()
                 break
+        if follow and stop_reason is None:
+            stop_reason = "interrupted" if ctrl_c.is_set() else ("max_frames" if n is not None and len(rows) >= n
+                                                                  else "idle")
+        stop.set()
+    if live is not None:
+        live.close()
+    if follow and not rows:
+        raise SeedmapError(f"no complete frame appeared within {idle_timeout_s:g} s", dataset)
+    if follow:
+        n = len(rows)
     t0 = time.perf_counter()
     traj, values, backend_name = slam.finalize()
     t_final = (time.perf_counter() - t0) * 1e3
@@ -163,11 +210,11 @@ def run_slam(
         oracle_detector=bool(getattr(det, "is_oracle", False)),
     )
     mpf = {k: np.asarray([r[k] for r in rows], np.int64) for k in ("frame", "stereo", "temporal", "inliers")}
-    result = SlamResult(metrics, traj, out, mpf)
+    result = SlamResult(metrics, traj, out, mpf, stop_reason, max_waiting)
     if out is not None:
         from seedmap.slam.outputs import write_outputs
 
-        with outputs.output_dir(out, "slam", ins, overwrite) as tmp:
+        with outputs.output_dir(out, "slam", ins, overwrite or live is not None) as tmp:
             dump_config(cfg, tmp / "config.yaml")
             write_outputs(tmp, result, online, gt, lm, rows, cfg, dataset)
             if html_report:
@@ -175,6 +222,50 @@ def run_slam(
 
                 slam_html_report(tmp, result, gt, lm, rows, timings, dataset)
     return result
+
+
+def _live_writer(out: Path, overwrite: bool):  # noqa: ANN202 - seedmap.slam.follow.LiveWriter
+    """The live output folder of a ``follow`` run (an old seedmap slam result there is replaced first)."""
+    import shutil
+
+    from seedmap.slam.follow import LiveWriter
+
+    if out.exists() and overwrite:  # check_output_dir allowed it: a seedmap slam result
+        shutil.rmtree(out)
+    return LiveWriter(out)
+
+
+#: a follow run says it falls behind when this many written frames wait (one more than the prefetch holds)
+BEHIND_FRAMES = 3
+
+
+def _report_behind(waiting: int, before: int, bar: Progress) -> None:
+    if waiting >= BEHIND_FRAMES and before < BEHIND_FRAMES:
+        logging.getLogger("seedmap.slam").warning(f"falling behind the camera: {waiting} frames waiting")
+    elif waiting >= BEHIND_FRAMES:
+        bar.note(f"{waiting} frames waiting")
+
+
+@contextlib.contextmanager
+def _stop_on_ctrl_c(stop: threading.Event, enabled: bool) -> Iterator[threading.Event]:
+    """With ``enabled`` (and in the main thread): the first Ctrl-C sets ``stop`` (the run ends after the frame in
+    progress and writes its outputs), a second one interrupts as usual. Yields the event "Ctrl-C was pressed"."""
+    pressed = threading.Event()
+    if not enabled or threading.current_thread() is not threading.main_thread():
+        yield pressed
+        return
+
+    def on_int(signum: int, frame: object) -> None:
+        if pressed.is_set():
+            raise KeyboardInterrupt
+        pressed.set()
+        stop.set()
+
+    old = signal.signal(signal.SIGINT, on_int)
+    try:
+        yield pressed
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def metrics_to_json(m: SlamMetrics) -> str:

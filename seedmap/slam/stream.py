@@ -66,13 +66,15 @@ _END = object()
 
 class Prefetch:
     """``for out in Prefetch(work, items, depth): ...`` yields ``work(item)`` in order, computed ahead in one
-    daemon thread. ``depth`` = 0 runs ``work`` inline (no thread)."""
+    daemon thread. ``depth`` = 0 runs ``work`` inline (no thread). ``stop``: an event that, once set, ends the
+    iteration at the next item (the items prepared ahead are dropped)."""
 
-    def __init__(self, work: Callable[[Any], Any], items: Iterable[Any], depth: int = 1) -> None:
+    def __init__(self, work: Callable[[Any], Any], items: Iterable[Any], depth: int = 1,
+                 stop: threading.Event | None = None) -> None:
         self.work = work
         self.items = items
         self.depth = max(0, int(depth))
-        self._stop = threading.Event()
+        self._stop = stop if stop is not None else threading.Event()
         self._thread: threading.Thread | None = None
 
     def _put(self, q: queue.Queue, x: Any) -> bool:
@@ -104,14 +106,21 @@ class Prefetch:
     def __iter__(self) -> Iterator[Any]:
         if self.depth == 0:
             for item in self.items:
+                if self._stop.is_set():
+                    return
                 yield self.work(item)
             return
         q: queue.Queue = queue.Queue(maxsize=self.depth)
         self._thread = threading.Thread(target=self._produce, args=(q,), name="seedmap-prefetch", daemon=True)
         self._thread.start()
         try:
-            while True:
-                x = q.get()
+            while not self._stop.is_set():
+                try:
+                    x = q.get(timeout=_POLL_S)
+                except queue.Empty:
+                    if self._stop.is_set():
+                        return
+                    continue
                 if x is _END:
                     return
                 if isinstance(x, _Failed):

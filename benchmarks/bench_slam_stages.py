@@ -1,0 +1,178 @@
+"""Whole-pipeline SLAM speed per stage on one dataset's images (``bench_slam.py --dataset DIR``).
+
+Methods, one after the other in the same process on the same images:
+
+* ``seeds (fast), prefetch``: the default ``seedmap slam`` (decode + detection of frame t+1 overlap the
+  association of frame t);
+* ``seeds (fast), sequential``: the same with ``prefetch_frames=0`` (every stage one after the other);
+* ``ORB + BF``: the descriptor baseline's front-end (``--matcher orb``: ORB detection of both images,
+  brute-force stereo and temporal matching) on every frame, the ratio's baseline (its SLAM loses track on
+  seed-textured rows, so its back-end is left out);
+* ``ORB-SLAM3``: ``pyorbslam3`` stereo tracking (2,000 ORB features), when the package and its vocabulary
+  (``--orb-vocab``, ``$PYORBSLAM3_VOCAB`` or the package's cache) are there; skipped otherwise.
+
+Stage times are wall ms per frame as the pipeline records them (``decode``, ``detection``, ``stereo``,
+``temporal``, ``motion``, ``backend``; ``final`` is the final batch optimisation per frame). With the prefetch
+thread ``decode`` and ``detection`` overlap the rest, so the stages add up to more than ``wall_ms_per_frame``
+(the loop's wall time per frame, image decode included, final optimisation excluded).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from seedmap.slam.config import SlamConfig
+from seedmap.slam.pipeline import run_slam
+
+#: the pipeline's timing keys -> the stage names of the JSON
+STAGES = {"load": "decode", "detect": "detection", "stereo_match": "stereo", "temporal_match": "temporal",
+          "motion": "motion", "backend": "backend"}
+
+
+def _seedmap_row(name: str, dataset: Path, matcher: str, detector: str | None, cfg: SlamConfig) -> dict:
+    """One ``run_slam`` of the whole pipeline (no files written)."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    r = run_slam(dataset, None, matcher=matcher, detector=detector, config=cfg, progress=False,
+                 html_report=False)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    m = r.metrics
+    ms = m.ms_per_frame
+    n = max(m.frames_tracked, 1)
+    row = {"method": name, "frames": m.frames, "frames_tracked": m.frames_tracked,
+           "stages_ms": {v: float(ms[k]) for k, v in STAGES.items() if k in ms},
+           "final_ms_per_frame": float(ms.get("final_batch_total", 0.0)) / n,
+           "wall_ms_per_frame": float(ms["total_per_frame"]),
+           "cpu_ms_per_frame": 1e3 * cpu / n, "run_wall_s": wall,
+           "ate_rmse_m": m.ate_rmse_m, "mdm_fraction": m.mdm_fraction}
+    print(row, flush=True)
+    return row
+
+
+def _orb_bf_row(dataset: Path) -> dict:
+    """The ORB + brute-force front-end on every frame: decode, ORB detection of both images, stereo and
+    temporal matching (its SLAM loses track on seed-textured rows; its per-frame cost is the baseline)."""
+    from seedmap.associate import make_matcher
+
+    cfg = SlamConfig()
+    ds = cfg.dataset.open(dataset)
+    m = make_matcher("orb", ds.calib, cfg=cfg)
+    tm: dict[str, list[float]] = {}
+    prev = None
+    t_start, c0 = time.perf_counter(), time.process_time()
+    for i in range(len(ds)):
+        t0 = time.perf_counter()
+        f = ds[i]
+        tm.setdefault("load", []).append((time.perf_counter() - t0) * 1e3)
+        cur = m.features(f)
+        if prev is not None:
+            m.match_temporal(prev, cur)
+        for k, v in cur.timings_ms.items():
+            tm.setdefault(k, []).append(v)
+        prev = cur
+    wall, cpu = time.perf_counter() - t_start, time.process_time() - c0
+    n = len(ds)
+    row = {"method": "ORB + BF", "frames": n, "frames_tracked": None,
+           "stages_ms": {v: float(np.mean(tm[k])) for k, v in STAGES.items() if k in tm},
+           "final_ms_per_frame": 0.0, "wall_ms_per_frame": 1e3 * wall / n, "cpu_ms_per_frame": 1e3 * cpu / n,
+           "run_wall_s": wall, "ate_rmse_m": None, "mdm_fraction": None}
+    print(row, flush=True)
+    return row
+
+
+def _orb_vocab(explicit: Path | None) -> str | None:
+    if explicit is not None:
+        return str(explicit) if explicit.is_file() else None
+    try:
+        import pyorbslam3
+    except ImportError:
+        return None
+    try:
+        return pyorbslam3.vocabulary_path(download=False)
+    except (FileNotFoundError, OSError):
+        return None
+
+
+def _orbslam3_settings(calib, fps: float, path: Path) -> None:
+    """An ORB-SLAM3 settings file for a rectified stereo pair (2,000 ORB features, its usual pyramid)."""
+    path.write_text(
+        "%YAML:1.0\n---\n"
+        f'Camera.type: "PinHole"\nCamera.fx: {calib.fx}\nCamera.fy: {calib.fy}\nCamera.cx: {calib.cx}\n'
+        f"Camera.cy: {calib.cy}\nCamera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\n"
+        f"Camera.width: {calib.width}\nCamera.height: {calib.height}\nCamera.fps: {fps}\n"
+        f"Camera.bf: {calib.fx * calib.baseline}\nCamera.RGB: 1\nThDepth: 35.0\n"
+        "ORBextractor.nFeatures: 2000\nORBextractor.scaleFactor: 1.2\nORBextractor.nLevels: 8\n"
+        "ORBextractor.iniThFAST: 20\nORBextractor.minThFAST: 7\n"
+        # read by ORB-SLAM3's map drawer even without a viewer
+        "Viewer.KeyFrameSize: 0.05\nViewer.KeyFrameLineWidth: 1.0\nViewer.GraphLineWidth: 0.9\n"
+        "Viewer.PointSize: 2.0\nViewer.CameraSize: 0.08\nViewer.CameraLineWidth: 3.0\nViewer.ViewpointX: 0.0\n"
+        "Viewer.ViewpointY: -0.7\nViewer.ViewpointZ: -1.8\nViewer.ViewpointF: 500.0\n")
+
+
+def _orbslam3_row(dataset: Path, vocab: str) -> dict:
+    import pyorbslam3
+
+    ds = SlamConfig().dataset.open(dataset)
+    ts = np.asarray(ds.timestamps, float)
+    fps = float(1.0 / np.median(np.diff(ts))) if len(ts) > 1 else 5.0
+    t_start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Path(tmp) / "stereo.yaml"
+        _orbslam3_settings(ds.calib, fps, settings)
+        t0 = time.perf_counter()
+        slam = pyorbslam3.Slam(vocab, str(settings), pyorbslam3.Sensor.STEREO)
+        t_vocab = time.perf_counter() - t0
+        load, track, ok = [], [], 0
+        c0 = time.process_time()
+        for i in range(len(ds)):
+            t0 = time.perf_counter()
+            f = ds[i]
+            t1 = time.perf_counter()
+            r = slam.track_stereo(f.left, f.right, float(f.timestamp))
+            t2 = time.perf_counter()
+            load.append(t1 - t0)
+            track.append(t2 - t1)
+            ok += r.pose_wc is not None
+        cpu = time.process_time() - c0
+        slam.shutdown()
+    n = len(track)
+    row = {"method": "ORB-SLAM3", "frames": n, "frames_tracked": ok,
+           "stages_ms": {"decode": 1e3 * float(np.mean(load)), "tracking": 1e3 * float(np.mean(track))},
+           "final_ms_per_frame": 0.0, "wall_ms_per_frame": 1e3 * float(np.mean(np.add(load, track))),
+           "cpu_ms_per_frame": 1e3 * cpu / max(n, 1), "run_wall_s": time.perf_counter() - t_start,
+           "vocabulary_load_s": t_vocab, "ate_rmse_m": None, "mdm_fraction": None}
+    print(row, flush=True)
+    return row
+
+
+def _best(rows: list[dict]) -> dict:
+    return min(rows, key=lambda r: r["wall_ms_per_frame"])
+
+
+def stage_rows(dataset: Path, orb_vocab: Path | None = None, repeats: int = 1) -> dict:
+    """All methods on ``dataset`` (``repeats`` runs each, interleaved, the fastest kept) and the ratios of the
+    seeds' wall ms per frame to the ORB + BF baseline's (and to ORB-SLAM3's when it ran)."""
+    seq = SlamConfig(prefetch_frames=0)
+    runs: dict[str, list[dict]] = {}
+    vocab = _orb_vocab(orb_vocab)
+    for _ in range(max(1, repeats)):
+        for name, matcher, det, cfg in (("seeds (fast), prefetch", "seeds", "fast", SlamConfig()),
+                                        ("seeds (fast), sequential", "seeds", "fast", seq)):
+            runs.setdefault(name, []).append(_seedmap_row(name, dataset, matcher, det, cfg))
+        runs.setdefault("ORB + BF", []).append(_orb_bf_row(dataset))
+        if vocab is not None:
+            runs.setdefault("ORB-SLAM3", []).append(_orbslam3_row(dataset, vocab))
+    rows = [_best(v) for v in runs.values()]
+    by = {r["method"]: r for r in rows}
+    seeds = by["seeds (fast), prefetch"]["wall_ms_per_frame"]
+    out = {"dataset": Path(dataset).name, "cpu_count": os.cpu_count(), "repeats": max(1, repeats), "rows": rows,
+           "seeds_vs_orb_bf_ratio": seeds / by["ORB + BF"]["wall_ms_per_frame"],
+           "prefetch_vs_sequential_ratio": seeds / by["seeds (fast), sequential"]["wall_ms_per_frame"],
+           "orbslam3": "ran" if vocab is not None else "skipped: pyorbslam3 or its ORB vocabulary not found"}
+    if "ORB-SLAM3" in by:
+        out["seeds_vs_orbslam3_ratio"] = seeds / by["ORB-SLAM3"]["wall_ms_per_frame"]
+    return out
