@@ -106,3 +106,21 @@ def test_first_frame_without_keypoints_is_a_recorded_lost_state():
 def test_zero_baseline_calibration_is_a_clear_error():
     with pytest.raises(SeedmapError, match="baseline"):
         StereoCalib(900.0, 900.0, 700.0, 500.0, 0.0, 1434, 1050)
+
+
+def test_the_streaming_api_gives_what_register_frame_gives_and_ends_at_lost():
+    cfg = SlamConfig()
+    rg = make_range(np.random.default_rng(3), length=0.25, seeds_per_panicle=120)
+    slam_ref, ref = _run(rg, np.random.default_rng(4), cfg, blank=(5,))
+    m = make_matcher("seeds", rg.calib, cfg=cfg)
+    rng = np.random.default_rng(4)
+    frames = [FrameFeatures(i, float(rg.gt.timestamps[i]), np.zeros((0, 2)), np.zeros((0, 2)), Matches()) if i == 5
+              else m.features_from_detections(observe(rg, i, rng, noise_px=0.2, miss=0.02))
+              for i in range(len(rg.gt))]
+    slam = SemanticSlam(rg.calib, m, cfg, first_pose=rg.gt.poses[0])
+    got = list(slam.run(frames))
+    assert [r.ok for r in got] == [r.ok for r in ref] == [True] * 5 + [False]
+    for a, b in zip(got, ref):
+        if a.ok:
+            assert np.array_equal(a.T_world_cam, b.T_world_cam)
+    assert np.array_equal(slam.landmarks().xyz, slam_ref.landmarks().xyz)

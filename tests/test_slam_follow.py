@@ -163,3 +163,20 @@ def test_ctrl_c_leaves_a_complete_result_of_the_frames_processed(cnn_range, tmp_
     q = _cli("slam", _copy_without_gt(data, tmp_path / "copy", k), "--out", ref, "-q")
     q.communicate(timeout=600)
     assert (out / "trajectory.tum").read_bytes() == (ref / "trajectory.tum").read_bytes()
+
+
+@pytest.mark.slow
+def test_the_streaming_api_on_images_matches_seedmap_slam(cnn_range, tmp_path):
+    from seedmap.associate import make_matcher
+    from seedmap.detect import make_detector
+    from seedmap.slam import SemanticSlam, SlamConfig, run_slam
+
+    cfg = SlamConfig()
+    ref = run_slam(_copy_without_gt(cnn_range.root, tmp_path / "copy"), None, detector="fast", config=cfg,
+                   progress=False, html_report=False)
+    m = make_matcher("seeds", cnn_range.calib, detector=make_detector("fast", config=cfg.detect), cfg=cfg)
+    slam = SemanticSlam(cnn_range.calib, m, cfg)
+    poses = [r.T_world_cam for r in slam.run(cnn_range) if r.ok]
+    assert len(poses) == len(ref.trajectory) == len(cnn_range)
+    traj, _, _ = slam.finalize()
+    assert np.array_equal(traj.poses, ref.trajectory.poses)

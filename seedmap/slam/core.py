@@ -1,4 +1,5 @@
-"""The SLAM core: one verb per frame, ``SemanticSlam.register_frame(features)``.
+"""The SLAM core: one verb per frame, ``SemanticSlam.register_frame(features)``, and its streaming form
+``for res in SemanticSlam(calib, matcher, cfg).run(frames): ...``.
 
 Front-end: triangulate the stereo matches, associate the current left keypoints with the previous
 frame's, estimate the frame-to-frame motion from the 3D seeds with RANSAC (default: 1-point
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import gtsam
@@ -33,7 +35,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from seedmap.associate.base import FULL_RES_WIDTH, FrameFeatures, Matcher
-from seedmap.records import Matches, StereoCalib, Trajectory
+from seedmap.records import Matches, StereoCalib, StereoFrame, Trajectory
 from seedmap.slam.config import SlamConfig
 from seedmap.slam.motion import ransac_motion, ransac_translation
 
@@ -316,6 +318,31 @@ class SemanticSlam:
         res.T_world_cam = T_opt
         res.n_landmarks_seen = int(sum(1 for t in track[track >= 0] if self.tracks[int(t)].admitted))
         return res
+
+    def run(self, frames: Iterable[StereoFrame | FrameFeatures], prefetch: int = 1) -> Iterator[FrameResult]:
+        """Streaming API: ``for res in slam.run(frames): ...`` registers each frame as it comes and yields its
+        :class:`FrameResult`; it ends after the frame that lost the track. ``frames``: stereo pairs (the matcher
+        turns them into features; a matcher with ``detect_frame`` detects frame t+1 in a background thread,
+        ``prefetch`` frames ahead, while frame t is associated) or ready :class:`FrameFeatures`. The map so far
+        is :meth:`landmarks`, the final trajectory :meth:`finalize`."""
+        from seedmap.slam.stream import Prefetch
+
+        detect = getattr(self.matcher, "detect_frame", None)
+
+        def work(f):  # noqa: ANN001, ANN202 - a frame or features
+            return f, (detect(f) if detect is not None and isinstance(f, StereoFrame) else None)
+
+        stream = Prefetch(work, frames, prefetch if detect is not None else 0)
+        for f, det in stream:
+            if isinstance(f, FrameFeatures):
+                feats = f
+            else:
+                feats = self.matcher.features(f, det) if det is not None else self.matcher.features(f)
+            res = self.register_frame(feats)
+            yield res
+            if not res.ok:
+                stream.close()
+                return
 
     # ------------------------------------------------------------------------------------------
     def online_trajectory(self) -> Trajectory:
