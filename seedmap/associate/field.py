@@ -115,9 +115,7 @@ def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     d = kb[j] - ka[i]
     ub = np.clip(((d - lo) / binw).astype(int), 0, nb - 1)
     flat = ((pcx * ncy + pcy)[i] * nb[0] + ub[:, 0]) * nb[1] + ub[:, 1]
-    hist = np.zeros(ncx * ncy * nb[0] * nb[1], np.float32)
-    cells, votes = np.unique(flat, return_counts=True)
-    hist[cells] = votes
+    hist = np.bincount(flat, minlength=ncx * ncy * nb[0] * nb[1]).astype(np.float32)  # votes per bin
     hist = hist.reshape(ncx, ncy, nb[0], nb[1])
     g = hist.sum((0, 1))
     gi = np.unravel_index(int(np.argmax(g)), g.shape)
