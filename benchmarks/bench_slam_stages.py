@@ -157,6 +157,7 @@ def stage_rows(dataset: Path, orb_vocab: Path | None = None, repeats: int = 1) -
     """All methods on ``dataset`` (``repeats`` runs each, interleaved, the fastest kept) and the ratios of the
     seeds' wall ms per frame to the ORB + BF baseline's (and to ORB-SLAM3's when it ran)."""
     seq = SlamConfig(prefetch_frames=0)
+    load_before = os.getloadavg()[0]
     runs: dict[str, list[dict]] = {}
     vocab = _orb_vocab(orb_vocab)
     for _ in range(max(1, repeats)):
@@ -170,6 +171,8 @@ def stage_rows(dataset: Path, orb_vocab: Path | None = None, repeats: int = 1) -
     by = {r["method"]: r for r in rows}
     seeds = by["seeds (fast), prefetch"]["wall_ms_per_frame"]
     out = {"dataset": Path(dataset).name, "cpu_count": os.cpu_count(), "repeats": max(1, repeats), "rows": rows,
+           # the machine's 1-minute load average before and after (other work running makes every time longer)
+           "load_average": [load_before, os.getloadavg()[0]],
            "seeds_vs_orb_bf_ratio": seeds / by["ORB + BF"]["wall_ms_per_frame"],
            "prefetch_vs_sequential_ratio": seeds / by["seeds (fast), sequential"]["wall_ms_per_frame"],
            "orbslam3": "ran" if vocab is not None else "skipped: pyorbslam3 or its ORB vocabulary not found"}

@@ -234,7 +234,9 @@ def page_slam(cmds: dict[str, str]) -> tuple[str, str] | None:
                  table(["association", "keypoints / image", "frames tracked", "wall ms", "CPU ms", "wall / SIFT"],
                        prows)]
     for st in d.get("stages", []):
-        body += [f"\n**Whole pipeline per stage on `{st['dataset']}`** (wall ms per frame, {st['cpu_count']} cores; "
+        la = st.get("load_average")
+        busy = f", load average {num(la[0], 2)} → {num(la[1], 2)}" if la else ""
+        body += [f"\n**Whole pipeline per stage on `{st['dataset']}`** (wall ms per frame, {st['cpu_count']} cores{busy}; "
                  "with the prefetch thread decode and detection overlap the rest, so the stages add up to more than "
                  f"the wall time; ORB-SLAM3: {st['orbslam3']})\n", _stage_table(st)]
     return "Semantic association and SLAM back-end speed", "\n".join(body)
