@@ -180,3 +180,18 @@ def test_the_streaming_api_on_images_matches_seedmap_slam(cnn_range, tmp_path):
     assert len(poses) == len(ref.trajectory) == len(cnn_range)
     traj, _, _ = slam.finalize()
     assert np.array_equal(traj.poses, ref.trajectory.poses)
+
+
+def test_following_a_folder_where_no_frame_comes_says_so_and_leaves_nothing(tmp_path):
+    from seedmap.io.seedmap_dataset import DatasetWriter
+    from seedmap.records import StereoCalib
+
+    live = tmp_path / "live"
+    DatasetWriter(live).write_calib(StereoCalib(fx=120.0, fy=120.0, cx=80.0, cy=60.0, baseline=0.1, width=160,
+                                                height=120))
+    p = _cli("slam", live, "--follow", "--idle-timeout", 0.5, "--matcher", "orb", "--out", tmp_path / "out", "-q")
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "no complete frame appeared within 0.5 s" in lines[0]
+    assert not (tmp_path / "out").exists()

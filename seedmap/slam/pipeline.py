@@ -191,6 +191,10 @@ def run_slam(
     if live is not None:
         live.close()
     if follow and not rows:
+        if live is not None:  # nothing processed: no result folder left behind
+            import shutil
+
+            shutil.rmtree(out, ignore_errors=True)
         raise SeedmapError(f"no complete frame appeared within {idle_timeout_s:g} s", dataset)
     if follow:
         n = len(rows)
