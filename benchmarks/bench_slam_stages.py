@@ -175,7 +175,8 @@ def stage_rows(dataset: Path, orb_vocab: Path | None = None, repeats: int = 1) -
            "load_average": [load_before, os.getloadavg()[0]],
            "seeds_vs_orb_bf_ratio": seeds / by["ORB + BF"]["wall_ms_per_frame"],
            "prefetch_vs_sequential_ratio": seeds / by["seeds (fast), sequential"]["wall_ms_per_frame"],
-           "orbslam3": "ran" if vocab is not None else "skipped: pyorbslam3 or its ORB vocabulary not found"}
+           "orbslam3": (f"ran, vocabulary {Path(vocab).name} ({Path(vocab).stat().st_size / 2**20:.1f} MiB)"
+                        if vocab is not None else "skipped: pyorbslam3 or its ORB vocabulary not found")}
     if "ORB-SLAM3" in by:
         out["seeds_vs_orbslam3_ratio"] = seeds / by["ORB-SLAM3"]["wall_ms_per_frame"]
     return out
