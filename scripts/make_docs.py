@@ -239,6 +239,16 @@ def page_slam(cmds: dict[str, str]) -> tuple[str, str] | None:
         body += [f"\n**Whole pipeline per stage on `{st['dataset']}`** (wall ms per frame, {st['cpu_count']} cores{busy}; "
                  "with the prefetch thread decode and detection overlap the rest, so the stages add up to more than "
                  f"the wall time; ORB-SLAM3: {st['orbslam3']})\n", _stage_table(st)]
+    if ln := load("bench_slam_length.json"):
+        lrows = [[num(r["length_m"]), f"`{r['online']}`", f"{r['frames_tracked']}/{r['frames']}",
+                  num(r["cpu_ms_first_10pct"]), num(r["cpu_ms_last_10pct"]), num(r["last_vs_first_ratio"]),
+                  num(r["final_batch_cpu_s"]), num(r["rss_growth_mb_per_m"]), num(r["position_rmse_mm"])]
+                 for r in ln["rows"]]
+        body += ["\n## Cost along a row\n", source("bench_slam_length.json", cmds),
+                 "Synthetic seed geometry (no renderer); CPU of association + motion + back-end per frame, first and "
+                 "last 10 % of the frames; `online = none` (no iSAM2) is the baseline of the same run.\n",
+                 table(["row (m)", "online", "frames tracked", "CPU ms first 10 %", "CPU ms last 10 %", "last / first",
+                        "final batch (s CPU)", "memory growth (MB / m)", "position RMSE (mm)"], lrows)]
     return "Semantic association and SLAM back-end speed", "\n".join(body)
 
 
