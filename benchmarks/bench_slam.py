@@ -92,7 +92,7 @@ def main() -> None:
     ap.add_argument("--dataset", action="append", type=Path, default=[],
                     help="also time the whole pipeline per stage on this dataset (repeatable)")
     ap.add_argument("--orb-vocab", type=Path, default=None,
-                    help="ORB-SLAM3 vocabulary (default: $PYORBSLAM3_VOCAB or pyorbslam3's cache)")
+                    help="ORB-SLAM3 vocabulary (default: the one seedmap ships for its orbslam3 method)")
     ap.add_argument("--repeats", type=int, default=1, help="whole-pipeline runs per method (best kept)")
     args = ap.parse_args()
     reps = 1 if args.quick else 3

@@ -8,8 +8,9 @@ Methods, one after the other in the same process on the same images:
 * ``ORB + BF``: the descriptor baseline's front-end (``--matcher orb``: ORB detection of both images,
   brute-force stereo and temporal matching) on every frame, the ratio's baseline (its SLAM loses track on
   seed-textured rows, so its back-end is left out);
-* ``ORB-SLAM3``: ``pyorbslam3`` stereo tracking (2,000 ORB features), when the package and its vocabulary
-  (``--orb-vocab``, ``$PYORBSLAM3_VOCAB`` or the package's cache) are there; skipped otherwise.
+* ``ORB-SLAM3``: ``pyorbslam3`` stereo tracking (``seedmap[peers]``; the settings and the vocabulary of the
+  ``orbslam3`` benchmark method, seedmap.peers.orbslam3: 2,000 ORB features, the shipped vocabulary unless
+  ``--orb-vocab``), when the package is installed; skipped otherwise.
 
 Stage times are wall ms per frame as the pipeline records them (``decode``, ``detection``, ``stereo``,
 ``temporal``, ``motion``, ``backend``; ``final`` is the final batch optimisation per frame). With the prefetch
@@ -84,45 +85,27 @@ def _orb_bf_row(dataset: Path) -> dict:
     return row
 
 
-def _orb_vocab(explicit: Path | None) -> str | None:
-    if explicit is not None:
-        return str(explicit) if explicit.is_file() else None
-    try:
-        import pyorbslam3
-    except ImportError:
-        return None
-    try:
-        return pyorbslam3.vocabulary_path(download=False)
-    except (FileNotFoundError, OSError):
-        return None
+def _orb_vocab(explicit: Path | None) -> tuple[str, str] | None:
+    """``(vocabulary path, label)`` for ORB-SLAM3 (``explicit``, else seedmap's shipped one), None without
+    ``pyorbslam3``."""
+    from seedmap.peers.orbslam3 import OrbSlam3Config, unavailable, vocabulary_file
 
-
-def _orbslam3_settings(calib, fps: float, path: Path) -> None:
-    """An ORB-SLAM3 settings file for a rectified stereo pair (2,000 ORB features, its usual pyramid)."""
-    path.write_text(
-        "%YAML:1.0\n---\n"
-        f'Camera.type: "PinHole"\nCamera.fx: {calib.fx}\nCamera.fy: {calib.fy}\nCamera.cx: {calib.cx}\n'
-        f"Camera.cy: {calib.cy}\nCamera.k1: 0.0\nCamera.k2: 0.0\nCamera.p1: 0.0\nCamera.p2: 0.0\n"
-        f"Camera.width: {calib.width}\nCamera.height: {calib.height}\nCamera.fps: {fps}\n"
-        f"Camera.bf: {calib.fx * calib.baseline}\nCamera.RGB: 1\nThDepth: 35.0\n"
-        "ORBextractor.nFeatures: 2000\nORBextractor.scaleFactor: 1.2\nORBextractor.nLevels: 8\n"
-        "ORBextractor.iniThFAST: 20\nORBextractor.minThFAST: 7\n"
-        # read by ORB-SLAM3's map drawer even without a viewer
-        "Viewer.KeyFrameSize: 0.05\nViewer.KeyFrameLineWidth: 1.0\nViewer.GraphLineWidth: 0.9\n"
-        "Viewer.PointSize: 2.0\nViewer.CameraSize: 0.08\nViewer.CameraLineWidth: 3.0\nViewer.ViewpointX: 0.0\n"
-        "Viewer.ViewpointY: -0.7\nViewer.ViewpointZ: -1.8\nViewer.ViewpointF: 500.0\n")
+    if unavailable() is not None:
+        return None
+    path, label = vocabulary_file(OrbSlam3Config(vocabulary=None if explicit is None else str(explicit)))
+    return str(path), label
 
 
 def _orbslam3_row(dataset: Path, vocab: str) -> dict:
     import pyorbslam3
 
+    from seedmap.peers.orbslam3 import OrbSlam3Config, fps_of, settings_text
+
     ds = SlamConfig().dataset.open(dataset)
-    ts = np.asarray(ds.timestamps, float)
-    fps = float(1.0 / np.median(np.diff(ts))) if len(ts) > 1 else 5.0
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         settings = Path(tmp) / "stereo.yaml"
-        _orbslam3_settings(ds.calib, fps, settings)
+        settings.write_text(settings_text(ds.calib, fps_of(ds.timestamps), OrbSlam3Config()))
         t0 = time.perf_counter()
         slam = pyorbslam3.Slam(vocab, str(settings), pyorbslam3.Sensor.STEREO)
         t_vocab = time.perf_counter() - t0
@@ -166,7 +149,7 @@ def stage_rows(dataset: Path, orb_vocab: Path | None = None, repeats: int = 1) -
             runs.setdefault(name, []).append(_seedmap_row(name, dataset, matcher, det, cfg))
         runs.setdefault("ORB + BF", []).append(_orb_bf_row(dataset))
         if vocab is not None:
-            runs.setdefault("ORB-SLAM3", []).append(_orbslam3_row(dataset, vocab))
+            runs.setdefault("ORB-SLAM3", []).append(_orbslam3_row(dataset, vocab[0]))
     rows = [_best(v) for v in runs.values()]
     by = {r["method"]: r for r in rows}
     seeds = by["seeds (fast), prefetch"]["wall_ms_per_frame"]
@@ -175,8 +158,7 @@ def stage_rows(dataset: Path, orb_vocab: Path | None = None, repeats: int = 1) -
            "load_average": [load_before, os.getloadavg()[0]],
            "seeds_vs_orb_bf_ratio": seeds / by["ORB + BF"]["wall_ms_per_frame"],
            "prefetch_vs_sequential_ratio": seeds / by["seeds (fast), sequential"]["wall_ms_per_frame"],
-           "orbslam3": (f"ran, vocabulary {Path(vocab).name} ({Path(vocab).stat().st_size / 2**20:.1f} MiB)"
-                        if vocab is not None else "skipped: pyorbslam3 or its ORB vocabulary not found")}
+           "orbslam3": f"ran, {vocab[1]}" if vocab is not None else "skipped: pyorbslam3 not installed"}
     if "ORB-SLAM3" in by:
         out["seeds_vs_orbslam3_ratio"] = seeds / by["ORB-SLAM3"]["wall_ms_per_frame"]
     return out
