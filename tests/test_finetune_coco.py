@@ -82,6 +82,9 @@ def test_boxes_only_fine_tune_learns_at_the_network_seed_size_and_reports_heldou
     lab = [k for k, im in enumerate(coco["images"]) if any(a["image_id"] == im["id"] for a in coco["annotations"])]
     tr, va = split_coco(lab, [], 0.2, 0, labels)
     assert m["train_images"] == len(tr) == 2 and m["val_images"] == len(va) == 1
+    from seedmap.detect.replay import REPLAY_PHOTOS
+
+    assert m["replay_images"] == REPLAY_PHOTOS and m["config"]["replay"] == 0.5  # rehearsal crops by default
     want = float(np.median(_sides(coco, {coco["images"][k]["id"] for k in tr})))
     assert m["images_seed_px"] == pytest.approx(want)
     assert m["seed_px"] == 5.0 and m["labels_scale"] == pytest.approx(5.0 / want)  # the shipped network's size
@@ -115,9 +118,10 @@ def test_polygon_and_rle_labels_train_from_scratch_and_without_a_held_out_f1_bef
     labels.write_text(json.dumps(coco))
     out = tmp_path / "scratch"
     assert run_cli(["train", "fast-cnn", labels, "--images-root", tiny_range, "--out", out, "--init", "none",
-                    *FAST], monkeypatch) == 0
+                    "--replay", "0", *FAST], monkeypatch) == 0
     m = json.loads((out / "train_metrics.json").read_text())
     assert m["config"]["init_weights"] is None and "val_f1" in m and "val_f1_before" not in m
+    assert m["replay_images"] == 0
     assert m["train_images"] == 1 and m["val_images"] == 1
     assert 1.0 < m["images_seed_px"] < 12.0 and m["labels_scale"] == pytest.approx(5.0 / m["images_seed_px"])
 

@@ -22,7 +22,7 @@ DEFAULT_LR = 2e-3
 #: ``train fast-cnn --threads`` default (torch CPU threads: two threads on a busy 2-core machine ran 16x slower)
 DEFAULT_THREADS = 1
 #: fraction of a COCO fine-tune's crops from simulated rehearsal photos (seedmap.detect.replay)
-DEFAULT_REPLAY = 0.0
+DEFAULT_REPLAY = 0.5
 
 
 def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],
