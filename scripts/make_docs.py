@@ -164,11 +164,13 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
     return "Paper benchmark (Table 1)", "\n".join(parts)
 
 
-def _sweep_cell(p: dict) -> str:
+def _sweep_cell(p: dict, fail_below: float) -> str:
     if p.get("gt") is None:
         return "n/a" if p.get("na") else ("error" if p.get("errors") else "–")
     band = "" if p["gt_min"] == p["gt_max"] else f" ({100 * p['gt_min']:.0f}–{100 * p['gt_max']:.0f})"
-    return f"{100 * p['gt']:.0f} %{band}" + (f" [{p['errors']} error]" if p.get("errors") else "")
+    digits = 1 if round(100 * p["gt"]) == round(100 * fail_below) else 0  # which side of the line it lies on
+    text = f"{100 * p['gt']:.{digits}f} %{band}" + (f" [{p['errors']} error]" if p.get("errors") else "")
+    return f"**{text}**" if p["gt"] < fail_below else text
 
 
 def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
@@ -192,12 +194,12 @@ def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
     for c in conds:
         per = summ["conditions"][c]["methods"]
         levels = [p["level"] for p in next(iter(per.values()))["points"]]
-        rows = [[method_label(m)] + [_sweep_cell(p) for p in v["points"]] for m, v in per.items()]
+        rows = [[method_label(m)] + [_sweep_cell(p, summ["fail_below"]) for p in v["points"]] for m, v in per.items()]
         rows += [[f"{method_label(m)}: ATE (mm)"] + [num(None if p.get("ate_m") is None else 1000 * p["ate_m"])
                                                    for p in v["points"]]
                  for m, v in per.items() if any(p.get("ate_m") is not None for p in v["points"])]
         parts += [f"\n## {c}\n", "GT-validated fraction of the range mapped: mean (min–max) over the world "
-                  "seeds; ATE over the tracked part, mean over the seeds that ran.\n",
+                  "seeds, in bold where the method fails; ATE over the tracked part, mean over the seeds that ran.\n",
                   table([f"{c} strength" if c != "ladder" else "rung"] + levels, rows)]
     notes = sorted({f"{r['method']}: {r['note']}" for r in d["records"] if r.get("status") not in ("ok", None)
                     and r.get("note")})

@@ -110,7 +110,7 @@ def test_report_files_from_records(tmp_path):
     assert doc["summary"]["conditions"]["wind"]["methods"]["seeds+fast"]["fails_first"] == "1"
     md = (tmp_path / "report.md").read_text()
     assert "| method | wind |" in md and "| seeds+fast | 1 |" in md and f"| orbslam3 | {NEVER} |" in md
-    assert "| seeds+fast | 100% | 60% (30–90) | 35% (20–50) | 0% |" in md
+    assert "| seeds+fast | 100% | 60% (30–90) | **35% (20–50)** | **0%** |" in md
     assert "| sift | n/a | n/a | n/a | n/a |" in md and "[2 error]" not in md and "error" in md
 
 

@@ -92,10 +92,14 @@ def _pct(v: float | None) -> str:
 
 
 def _cell(p: dict) -> str:
+    """A point's mean (min–max) GT-validated fraction, in bold where the method fails (one decimal where the
+    rounded mean would hide which side of :data:`FAIL_BELOW` it lies on)."""
     if p["gt"] is None:
         return "n/a" if p["na"] else ("error" if p["errors"] else "–")
     band = "" if p["gt_min"] == p["gt_max"] else f" ({100 * p['gt_min']:.0f}–{100 * p['gt_max']:.0f})"
-    return _pct(p["gt"]) + band + (f" [{p['errors']} error]" if p["errors"] else "")
+    mean = f"{100 * p['gt']:.1f}%" if round(100 * p["gt"]) == round(100 * FAIL_BELOW) else _pct(p["gt"])
+    text = mean + band + (f" [{p['errors']} error]" if p["errors"] else "")
+    return f"**{text}**" if p["gt"] < FAIL_BELOW else text
 
 
 def failure_table(summary: dict) -> str:
@@ -193,7 +197,8 @@ def write_sweep_reports(rows: Sequence[dict], out: str | Path, config: dict | No
         atomic_write_bytes(png, condition_plot_png(summary, c))
         written[f"plots/{png.name}"] = png
         md += [f"## {c}\n", f"![{c}](plots/{png.name})\n",
-               "GT-validated fraction mapped, mean (min–max) over world seeds; ATE over the tracked part.\n",
+               "GT-validated fraction mapped, mean (min–max) over world seeds, in bold where the method fails; ATE "
+               "over the tracked part.\n",
                condition_table(summary, c)]
     if config_yaml is not None:
         md.append("## Configuration\n\n```yaml\n" + config_yaml + "```\n")
