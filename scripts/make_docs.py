@@ -167,7 +167,8 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
 def _sweep_cell(p: dict, fail_below: float) -> str:
     if p.get("gt") is None:
         return "n/a" if p.get("na") else ("error" if p.get("errors") else "–")
-    band = "" if p["gt_min"] == p["gt_max"] else f" ({100 * p['gt_min']:.0f}–{100 * p['gt_max']:.0f})"
+    lo, hi = f"{100 * p['gt_min']:.0f}", f"{100 * p['gt_max']:.0f}"
+    band = "" if lo == hi else f" ({lo}–{hi})"
     digits = 1 if round(100 * p["gt"]) == round(100 * fail_below) else 0  # which side of the line it lies on
     text = f"{100 * p['gt']:.{digits}f} %{band}" + (f" [{p['errors']} error]" if p.get("errors") else "")
     return f"**{text}**" if p["gt"] < fail_below else text

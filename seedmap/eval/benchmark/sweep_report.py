@@ -96,7 +96,8 @@ def _cell(p: dict) -> str:
     rounded mean would hide which side of :data:`FAIL_BELOW` it lies on)."""
     if p["gt"] is None:
         return "n/a" if p["na"] else ("error" if p["errors"] else "–")
-    band = "" if p["gt_min"] == p["gt_max"] else f" ({100 * p['gt_min']:.0f}–{100 * p['gt_max']:.0f})"
+    lo, hi = f"{100 * p['gt_min']:.0f}", f"{100 * p['gt_max']:.0f}"
+    band = "" if lo == hi else f" ({lo}–{hi})"
     mean = f"{100 * p['gt']:.1f}%" if round(100 * p["gt"]) == round(100 * FAIL_BELOW) else _pct(p["gt"])
     text = mean + band + (f" [{p['errors']} error]" if p["errors"] else "")
     return f"**{text}**" if p["gt"] < FAIL_BELOW else text
