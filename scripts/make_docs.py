@@ -539,7 +539,9 @@ def glance() -> str:
                      if mm == m and v["fails_first"] not in ("never in range", "n/a")]
                  for m in dict.fromkeys(m for per in summ.values() for m in per["methods"])}
         txt = "; ".join(f"{method_label(m)}: {', '.join(v) if v else 'never'}" for m, v in worst.items())
-        rows.append([f"SLAM under field conditions ({', '.join(summ)})", "fails first at (mean GT-validated fraction "
+        cfg = d.get("config") or {}
+        rows.append([f"SLAM under field conditions ({', '.join(summ)}), {num(cfg.get('length'))} m ranges, "
+                     f"{len(cfg.get('seeds', []))} world seeds", "fails first at (mean GT-validated fraction "
                      f"< 50 %): {txt}", "[sweep](docs/results/sweep.md)"])
     if d := load("detect_accuracy.json"):
         f1s, kps, tot = [], [], {"tp": 0, "n_det": 0, "n_gt": 0}
