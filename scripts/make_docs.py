@@ -164,6 +164,55 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
     return "Paper benchmark (Table 1)", "\n".join(parts)
 
 
+def _sweep_cell(p: dict, fail_below: float) -> str:
+    if p.get("gt") is None:
+        return "n/a" if p.get("na") else ("error" if p.get("errors") else "–")
+    lo, hi = f"{100 * p['gt_min']:.0f}", f"{100 * p['gt_max']:.0f}"
+    band = "" if lo == hi else f" ({lo}–{hi})"
+    digits = 1 if round(100 * p["gt"]) == round(100 * fail_below) else 0  # which side of the line it lies on
+    text = f"{100 * p['gt']:.{digits}f} %{band}" + (f" [{p['errors']} error]" if p.get("errors") else "")
+    return f"**{text}**" if p["gt"] < fail_below else text
+
+
+def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
+    d = load("sweep.json")
+    if d is None:
+        return None
+    summ, cfg = d["summary"], d.get("config") or {}
+    conds = list(summ["conditions"])
+    methods = list(dict.fromkeys(m for c in conds for m in summ["conditions"][c]["methods"]))
+    seeds = ", ".join(str(s) for s in cfg.get("seeds", []))
+    parts = [source("sweep.json", cmds),
+             f"Commit `{d.get('commit', '?')}`, {d.get('date', '?')}, {d.get('machine', 'machine not recorded')}. "
+             f"Simulated {num(cfg.get('length'))} m ranges, world seeds {seeds}; one condition at a time "
+             "(`--set conditions.<c>=<strength>`, 1 = the typical field value of "
+             "[docs/method/conditions.md](../method/conditions.md)), and the calm < breeze < windy < rough ladder. "
+             f"A method fails at a strength when its mean GT-validated fraction of the range mapped drops below "
+             f"{100 * summ['fail_below']:.0f} %.\n",
+             "## Where each method fails first\n",
+             table(["method"] + conds, [[method_label(m)] + [summ["conditions"][c]["methods"].get(m, {}).get(
+                 "fails_first", "–") for c in conds] for m in methods])]
+    for c in conds:
+        per = summ["conditions"][c]["methods"]
+        levels = [p["level"] for p in next(iter(per.values()))["points"]]
+        rows = [[method_label(m)] + [_sweep_cell(p, summ["fail_below"]) for p in v["points"]] for m, v in per.items()]
+        rows += [[f"{method_label(m)}: ATE (mm)"] + [num(None if p.get("ate_m") is None else 1000 * p["ate_m"])
+                                                   for p in v["points"]]
+                 for m, v in per.items() if any(p.get("ate_m") is not None for p in v["points"])]
+        parts += [f"\n## {c}\n", "GT-validated fraction of the range mapped: mean (min–max) over the world "
+                  "seeds, in bold where the method fails; ATE over the tracked part, mean over the seeds that ran.\n",
+                  table([f"{c} strength" if c != "ladder" else "rung"] + levels, rows)]
+    notes = sorted({f"{r['method']}: {r['note']}" for r in d["records"] if r.get("status") not in ("ok", None)
+                    and r.get("note")})
+    if notes:
+        parts.append("\nNotes: " + "; ".join(notes) + "\n")
+    vocab = sorted({r["note"].split(";")[0] for r in d["records"] if r.get("status") == "ok"
+                    and r.get("note", "").startswith("vocabulary")})
+    if vocab:
+        parts.append("\norbslam3 " + "; ".join(vocab) + ".\n")
+    return "Robustness sweep (field conditions)", "\n".join(parts)
+
+
 def _detect_accuracy(d: dict, cmds: dict[str, str]) -> str:
     rows, tot = [], {"tp": 0, "n_det": 0, "n_gt": 0}
     for name, v in d["datasets"].items():
@@ -486,6 +535,7 @@ def page_photos(cmds: dict[str, str]) -> tuple[str, str] | None:
 PAGES: dict[str, Callable[[dict[str, str]], tuple[str, str] | None]] = {
     "demo.md": page_demo,
     "paper.md": page_paper,
+    "sweep.md": page_sweep,
     "detect.md": page_detect,
     "photos.md": page_photos,
     "slam.md": page_slam,
@@ -519,6 +569,16 @@ def glance() -> str:
         ranges = len({r["range_name"] for r in recs})
         rows.append([f"SLAM, the paper's {ranges} ranges", "mean GT-validated fraction mapped: " + ", ".join(parts),
                      "[paper](docs/results/paper.md)"])
+    if d := load("sweep.json"):
+        summ = d["summary"]["conditions"]
+        worst = {m: [f"{c} {v['fails_first']}" for c, per in summ.items() for mm, v in per["methods"].items()
+                     if mm == m and v["fails_first"] not in ("never in range", "n/a")]
+                 for m in dict.fromkeys(m for per in summ.values() for m in per["methods"])}
+        txt = "; ".join(f"{method_label(m)}: {', '.join(v) if v else 'never'}" for m, v in worst.items())
+        cfg = d.get("config") or {}
+        rows.append([f"SLAM under field conditions ({', '.join(summ)}), {num(cfg.get('length'))} m ranges, "
+                     f"{len(cfg.get('seeds', []))} world seeds", "fails first at (mean GT-validated fraction "
+                     f"< 50 %): {txt}", "[sweep](docs/results/sweep.md)"])
     if d := load("detect_accuracy.json"):
         f1s, kps, tot = [], [], {"tp": 0, "n_det": 0, "n_gt": 0}
         for v in d["datasets"].values():

@@ -34,6 +34,7 @@ KINDS: dict[str, tuple[str, str, str]] = {
     "simulate-range": ("seedmap.sim.config", "SimConfig", "seedmap simulate range"),
     "simulate-panicle": ("seedmap.sim.panicle_scan", "PanicleScanConfig", "seedmap simulate panicle"),
     "benchmark": ("seedmap.eval.benchmark", "BenchmarkConfig", "seedmap benchmark paper, run, tune"),
+    "sweep": ("seedmap.eval.benchmark.sweep", "SweepConfig", "seedmap benchmark sweep"),
     "train-detector": ("seedmap.detect.learned.train", "DetectorTrainConfig", "seedmap train detector"),
     "train-segmenter": ("seedmap.detect.learned.train", "SegmenterTrainConfig", "seedmap train segmenter"),
 }

@@ -52,14 +52,15 @@ def _worker_init() -> None:
 
 
 def simulate_job(preset: str, seed: int, overrides: Sequence[str], out: str) -> str:
-    """Simulate one range into ``out`` (atomic; reused when already finished)."""
+    """Simulate one range into ``out`` (atomic; reused when already finished); ``preset`` "" = the simulator's
+    defaults."""
     from seedmap.config import load_config
     from seedmap.sim import simulate_range
     from seedmap.sim.config import SimConfig, preset_dict
 
     if is_dataset(Path(out)):
         return out
-    cfg = load_config(SimConfig, base=preset_dict(preset), overrides=[*overrides, f"seed={int(seed)}"])
+    cfg = load_config(SimConfig, base=preset_dict(preset) if preset else {}, overrides=[*overrides, f"seed={int(seed)}"])
     simulate_range(cfg, Path(out), overwrite=False, progress=False)
     return out
 
