@@ -164,6 +164,14 @@ class SemanticSlam:
             pts[a] = self.calib.triangulate(f.kp_left[a], f.kp_right[b, 0])
         return ridx, obs, pts
 
+    @staticmethod
+    def _last_key(k: int) -> gtsam.KeyGroupMap:
+        """iSAM2 ordering constraint: only the new pose is eliminated last (docs/method/slam.md: by default
+        iSAM2 puts every variable of the new factors, all landmarks seen in the frame, into the root clique)."""
+        last = gtsam.KeyGroupMap()
+        last.insert2(X(k), 1)
+        return last
+
     def _declare_lost(self, f: FrameFeatures, reason: str, res: FrameResult) -> FrameResult:
         self.lost = True
         self.lost_reason = reason
@@ -292,7 +300,7 @@ class SemanticSlam:
         t0 = time.perf_counter()
         try:
             if self.isam is not None:
-                self.isam.update(graph, values)
+                self.isam.update(graph, values, [], self._last_key(k))
                 # the new pose only: the whole estimate is a copy of every variable, O(map) per frame
                 T_opt = self.isam.calculateEstimatePose3(X(k)).matrix()
             else:
