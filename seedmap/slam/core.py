@@ -25,6 +25,7 @@ After "lost" the object refuses further frames (the paper's maximum-distance-map
 
 from __future__ import annotations
 
+import bisect
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -164,11 +165,16 @@ class SemanticSlam:
             pts[a] = self.calib.triangulate(f.kp_left[a], f.kp_right[b, 0])
         return ridx, obs, pts
 
-    @staticmethod
-    def _last_key(k: int) -> gtsam.KeyGroupMap:
-        """iSAM2 ordering constraint: only the new pose is eliminated last (docs/method/slam.md: by default
-        iSAM2 puts every variable of the new factors, all landmarks seen in the frame, into the root clique)."""
+    def _last_keys(self, k: int, track: np.ndarray) -> gtsam.KeyGroupMap:
+        """iSAM2 ordering constraint: the poses of the active window (from the first frame of the oldest track
+        seen in frame ``k`` on) are eliminated last, the landmarks before them. iSAM2's default puts every
+        variable of the new factors, all landmarks of the frame, into a root clique whose dense factors grow
+        with the map; only the new pose last leaves old poses stuck in the root (docs/method/slam_live.md)."""
+        seen = track[track >= 0]
+        first = min((self.tracks[int(t)].obs[0][0] for t in seen), default=k)
         last = gtsam.KeyGroupMap()
+        for j in self.frames[bisect.bisect_left(self.frames, first):]:
+            last.insert2(X(j), 1)
         last.insert2(X(k), 1)
         return last
 
@@ -300,7 +306,7 @@ class SemanticSlam:
         t0 = time.perf_counter()
         try:
             if self.isam is not None:
-                self.isam.update(graph, values, [], self._last_key(k))
+                self.isam.update(graph, values, [], self._last_keys(k, track))
                 # the new pose only: the whole estimate is a copy of every variable, O(map) per frame
                 T_opt = self.isam.calculateEstimatePose3(X(k)).matrix()
             else:
