@@ -27,8 +27,9 @@ def _row(length: float):
 
 def test_bayes_tree_grows_with_the_variables_not_with_the_view():
     rg, slam, nnz = _row(0.8)
-    # only the new pose is ordered last: the root clique holds poses, not every landmark seen in the frame,
-    # so the factorisation costs ~100 entries per variable (all observed landmarks last: > 1000, and growing)
+    # the active window's poses are ordered last, landmarks before them: the root clique holds poses, not every
+    # landmark seen in the frame, so the factorisation costs ~100 entries per variable (iSAM2's default order,
+    # all observed variables last: > 1000, and growing)
     per_var = nnz[:, 0] / nnz[:, 1]
     assert per_var[-1] < 300, per_var
     half = len(nnz) // 2
