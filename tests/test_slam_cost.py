@@ -46,3 +46,24 @@ def test_no_per_frame_copy_of_the_estimate_is_kept():
     assert est.size() == slam.initial.size() == slam.graph.keys().size()
     # ... and its newest pose is the one the last frame returned
     np.testing.assert_array_equal(est.atPose3(gtsam.symbol("x", slam.frames[-1])).matrix(), slam.online_poses[-1])
+
+
+def test_a_frame_rejected_after_the_update_leaves_the_accepted_map(monkeypatch):
+    import seedmap.slam.core as core
+
+    rng = np.random.default_rng(5)
+    rg = make_range(rng, length=0.3, seeds_per_panicle=150)
+    cfg = SlamConfig()
+    m = make_matcher("seeds", rg.calib, cfg=cfg)
+    slam = SemanticSlam(rg.calib, m, cfg, first_pose=rg.gt.poses[0])
+    n = len(rg.gt)
+    for i in range(n - 1):
+        assert slam.register_frame(m.features_from_detections(observe(rg, i, rng))).ok
+    monkeypatch.setattr(core, "MAX_CORRECTION_M", -1.0)  # iSAM2 takes the last frame, the check rejects it
+    r = slam.register_frame(m.features_from_detections(observe(rg, n - 1, rng)))
+    assert not r.ok and "diverged" in r.lost_reason
+    assert slam.estimate.size() == slam.initial.size()  # the rejected frame's variables are left out
+    traj, values, name = slam.finalize()
+    assert len(traj) == n - 1 and name == "isam2+lm"
+    err = np.linalg.norm(traj.positions - rg.gt.positions[: n - 1], axis=1)
+    assert err.max() < 0.005

@@ -364,7 +364,10 @@ class SemanticSlam:
         demand: a copy of the whole map, so it is not taken per frame."""
         if self.isam is None or self.initial.size() == 0:
             return gtsam.Values()
-        est = self.isam.calculateEstimate()
+        try:
+            est = self.isam.calculateEstimate()
+        except RuntimeError:  # an update that threw (the frame that lost the track) can leave no usable estimate
+            return gtsam.Values(self.initial)
         if est.size() == self.initial.size():
             return est
         v = gtsam.Values()  # a rejected last frame left its variables in iSAM2: keep the accepted ones
