@@ -7,7 +7,7 @@ has a ratio of 1), the final batch optimisation, and the memory growth per metre
 ``backend.online=none`` (no iSAM2: motion estimate only, the final batch still runs) as the baseline in the
 same run, which separates the back-end's growth from the front-end's.
 
-Writes benchmarks/results/bench_slam_length.json. Run: ``python benchmarks/bench_slam_length.py --lengths 2 5 20``
+Writes benchmarks/results/bench_slam_length.json. Run: ``python benchmarks/bench_slam_length.py --lengths 2 5 20 50``
 (iSAM2 keeps every pose and landmark, ~60 MB per metre of row here: mind the machine's memory for long rows).
 """
 
