@@ -25,6 +25,7 @@ After "lost" the object refuses further frames (the paper's maximum-distance-map
 
 from __future__ import annotations
 
+import bisect
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator
@@ -132,7 +133,6 @@ class SemanticSlam:
         self.isam = gtsam.ISAM2(params) if b.online == "isam2" else None
         self.graph = gtsam.NonlinearFactorGraph()  # everything added so far (for the final batch)
         self.initial = gtsam.Values()
-        self.estimate = gtsam.Values()
         self.frames: list[int] = []  # dataset indices of the registered frames, in order
         self.timestamps: list[float] = []
         self.online_poses: list[np.ndarray] = []
@@ -164,6 +164,19 @@ class SemanticSlam:
             obs[a] = np.c_[f.kp_left[a, 0], f.kp_right[b, 0], f.kp_left[a, 1]]
             pts[a] = self.calib.triangulate(f.kp_left[a], f.kp_right[b, 0])
         return ridx, obs, pts
+
+    def _last_keys(self, k: int, track: np.ndarray) -> gtsam.KeyGroupMap:
+        """iSAM2 ordering constraint: the poses of the active window (from the first frame of the oldest track
+        seen in frame ``k`` on) are eliminated last, the landmarks before them. iSAM2's default puts every
+        variable of the new factors, all landmarks of the frame, into a root clique whose dense factors grow
+        with the map; only the new pose last leaves old poses stuck in the root (docs/method/slam_live.md)."""
+        seen = track[track >= 0]
+        first = min((self.tracks[int(t)].obs[0][0] for t in seen), default=k)
+        last = gtsam.KeyGroupMap()
+        for j in self.frames[bisect.bisect_left(self.frames, first):]:
+            last.insert2(X(j), 1)
+        last.insert2(X(k), 1)
+        return last
 
     def _declare_lost(self, f: FrameFeatures, reason: str, res: FrameResult) -> FrameResult:
         self.lost = True
@@ -293,11 +306,10 @@ class SemanticSlam:
         t0 = time.perf_counter()
         try:
             if self.isam is not None:
-                self.isam.update(graph, values)
-                estimate = self.isam.calculateEstimate()
-                T_opt = estimate.atPose3(X(k)).matrix()
+                self.isam.update(graph, values, [], self._last_keys(k, track))
+                # the new pose only: the whole estimate is a copy of every variable, O(map) per frame
+                T_opt = self.isam.calculateEstimatePose3(X(k)).matrix()
             else:
-                estimate = None
                 T_opt = values.atPose3(X(k)).matrix()
         except RuntimeError as e:  # IndeterminantLinearSystemException and friends
             tm["backend"] = (time.perf_counter() - t0) * 1e3
@@ -308,8 +320,6 @@ class SemanticSlam:
             return self._declare_lost(f, "optimiser diverged (pose moved away from the motion estimate)", res)
         self.graph.push_back(graph)
         self.initial.insert(values)
-        if estimate is not None:
-            self.estimate = estimate
         self.frames.append(k)
         self.timestamps.append(f.timestamp)
         self.online_poses.append(T_opt)
@@ -348,16 +358,28 @@ class SemanticSlam:
     def online_trajectory(self) -> Trajectory:
         return Trajectory(np.asarray(self.timestamps), np.asarray(self.online_poses).reshape(-1, 4, 4))
 
+    @property
+    def estimate(self) -> gtsam.Values:
+        """iSAM2's current estimate of the variables of :attr:`graph` (empty without iSAM2), computed on
+        demand: a copy of the whole map, so it is not taken per frame."""
+        if self.isam is None or self.initial.size() == 0:
+            return gtsam.Values()
+        try:
+            est = self.isam.calculateEstimate()
+        except RuntimeError:  # an update that threw (the frame that lost the track) can leave no usable estimate
+            return gtsam.Values(self.initial)
+        if est.size() == self.initial.size():
+            return est
+        v = gtsam.Values()  # a rejected last frame left its variables in iSAM2: keep the accepted ones
+        for key in self.initial.keys():
+            v.insert(key, est.atPose3(key) if gtsam.Symbol(key).chr() == ord("x") else est.atPoint3(key))
+        return v
+
     def _current_values(self) -> gtsam.Values:
         """Best current values of every variable in :attr:`graph` (iSAM2 estimate, else initial)."""
-        if self.isam is None or self.estimate.size() == 0:
+        if self.isam is None or self.initial.size() == 0:
             return gtsam.Values(self.initial)
-        v = gtsam.Values(self.estimate)
-        for key in self.initial.keys():
-            if not v.exists(key):
-                v.insert(key, self.initial.atPose3(key) if gtsam.Symbol(key).chr() == ord("x")
-                         else self.initial.atPoint3(key))
-        return v
+        return self.estimate
 
     def finalize(self) -> tuple[Trajectory, gtsam.Values, str]:
         """Final trajectory: batch LM/Dogleg over the whole graph (if configured), else online.
