@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime
 import json
-import os
-import platform
-import subprocess
 from pathlib import Path
+
+from provenance import stamp
 
 ROOT = Path(__file__).resolve().parents[1]
 TEXT = {"scenario", "range_name", "method", "status", "note", "lost_reason"}
@@ -39,10 +37,7 @@ def main() -> None:
     a = ap.parse_args()
     with open(a.result / "results.csv", newline="") as fh:
         records = [{k: _value(k, v) for k, v in row.items()} for row in csv.DictReader(fh)]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                            text=True).stdout.strip() or "unknown"
-    doc = {"command": a.command, "commit": commit, "date": datetime.date.today().isoformat(),
-           "machine": f"{os.cpu_count()} CPUs, {platform.machine()}", "records": records}
+    doc = {**stamp(a.command), "records": records}
     a.out.write_text(json.dumps(doc, indent=1) + "\n")
     print(a.out)
 

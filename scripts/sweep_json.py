@@ -9,12 +9,10 @@ method) plus the command, commit, date and machine.
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
-import os
-import platform
-import subprocess
 from pathlib import Path
+
+from provenance import stamp
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,10 +27,7 @@ def main() -> None:
     if not src.is_file():
         raise SystemExit(f"{src}: not found (is {a.result} a finished `seedmap benchmark sweep` folder?)")
     body = json.loads(src.read_text())
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                            text=True).stdout.strip() or "unknown"
-    doc = {"command": a.command, "commit": commit, "date": datetime.date.today().isoformat(),
-           "machine": f"{os.cpu_count()} CPUs, {platform.machine()}", **body}
+    doc = {**stamp(a.command), **body}
     a.out.write_text(json.dumps(doc, indent=1) + "\n")
     print(a.out)
 
