@@ -13,12 +13,15 @@ from seedmap.io.atomic import atomic_write_text
 from seedmap.records import Trajectory
 
 
+def tum_line(t: float, row: np.ndarray) -> str:
+    """One TUM line ``timestamp tx ty tz qx qy qz qw`` (``row``: :func:`pose_to_tum`'s 7 values; no newline)."""
+    return f"{t:.6f} " + " ".join(f"{v:.9f}" for v in row)
+
+
 def write_tum(path: str | Path, traj: Trajectory) -> None:
     """``timestamp tx ty tz qx qy qz qw`` per line."""
     rows = pose_to_tum(traj.poses) if len(traj) else np.zeros((0, 7))
-    lines = [
-        f"{t:.6f} " + " ".join(f"{v:.9f}" for v in r) for t, r in zip(traj.timestamps, rows, strict=True)
-    ]
+    lines = [tum_line(t, r) for t, r in zip(traj.timestamps, rows, strict=True)]
     atomic_write_text(Path(path), "\n".join(lines) + ("\n" if lines else ""))
 
 

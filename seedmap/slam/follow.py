@@ -129,9 +129,9 @@ class LiveWriter:
 
     def frame(self, timestamp: float, T_world_cam: np.ndarray, slam) -> None:  # noqa: ANN001 - SemanticSlam
         from seedmap.geometry import pose_to_tum
+        from seedmap.io.trajectory import tum_line
 
-        row = pose_to_tum(T_world_cam)[0]
-        self._traj.write(f"{timestamp:.6f} " + " ".join(f"{v:.9f}" for v in row) + "\n")  # as write_tum
+        self._traj.write(tum_line(timestamp, pose_to_tum(T_world_cam)[0]) + "\n")
         self._traj.flush()
         self._n += 1
         if self._n % self.flush_every == 0:
