@@ -84,6 +84,17 @@ def sync_by_time(est: Trajectory, gt: Trajectory, tol_s: float | None = None) ->
     return (Trajectory(est.timestamps[ok], est.poses[ok]), Trajectory(gt.timestamps[gi], gt.poses[gi]))
 
 
+def gt_pose_at(t: float, gt: Trajectory | None, timestamps: np.ndarray) -> np.ndarray | None:
+    """The ground-truth pose at time ``t`` (the nearest within half the median interval of the frame
+    ``timestamps``; 2 ms with fewer than two frames), None where the ground truth does not cover it. A run's
+    first pose is anchored there, so that its trajectory compares with the ground truth."""
+    if gt is None or len(gt) == 0:
+        return None
+    dt = float(np.median(np.diff(timestamps))) if len(timestamps) > 1 else 2e-3
+    _, g = sync_by_time(Trajectory(np.array([t], float), np.eye(4)[None]), gt, 0.5 * dt)
+    return g.poses[0] if len(g) else None
+
+
 def ate_rmse(est: Trajectory, gt: Trajectory, align: str = "se3") -> float | None:
     """evo APE (translation, RMSE) of ``est`` vs ``gt`` (same length, frame-by-frame).
 

@@ -154,7 +154,7 @@ def segments(states: np.ndarray, poses: np.ndarray) -> list[Segment]:
 def first_track(states: np.ndarray, poses: np.ndarray, timestamps: np.ndarray, gt: Trajectory | None
                 ) -> tuple[Trajectory, int | None, str | None]:
     """The scored trajectory (first segment, anchored like seedmap's prior), the frame lost at and why."""
-    from seedmap.eval.slam_metrics import sync_by_time
+    from seedmap.eval.slam_metrics import gt_pose_at
     from seedmap.geometry import invert
 
     segs = segments(states, poses)
@@ -162,12 +162,9 @@ def first_track(states: np.ndarray, poses: np.ndarray, timestamps: np.ndarray, g
         seen = ", ".join(sorted({STATE_NAMES.get(int(s), str(s)) for s in states}))
         return Trajectory(np.zeros(0), np.zeros((0, 4, 4))), 0, f"ORB-SLAM3 never tracked a frame (states: {seen})"
     s = segs[0]
-    anchor = np.eye(4)  # the first tracked frame at its ground-truth pose, as seedmap's first-pose prior
-    if gt is not None and len(gt):
-        dt = float(np.median(np.diff(timestamps))) if len(timestamps) > 1 else 2e-3
-        _, g = sync_by_time(Trajectory(timestamps[s.start:s.start + 1], np.eye(4)[None]), gt, 0.5 * dt)
-        if len(g):
-            anchor = g.poses[0]
+    # the first tracked frame at its ground-truth pose, as seedmap's first-pose prior
+    g0 = gt_pose_at(timestamps[s.start], gt, timestamps)
+    anchor = np.eye(4) if g0 is None else g0
     rel = invert(poses[s.start]) @ poses[s.start:s.end]
     traj = Trajectory(timestamps[s.start:s.end], anchor[None] @ rel)
     if s.end >= len(states):

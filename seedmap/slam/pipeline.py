@@ -137,13 +137,11 @@ def run_slam(
     det = _detector_for(detector, Path(dataset), cfg.detect) if matcher.strip().lower() == "seeds" else None
     m = make_matcher(matcher, calib, detector=det, cfg=cfg)
     first = np.eye(4)  # the prior on the first pose: GT at the first frame's time when GT covers it
-    if gt is not None and len(gt) and not follow:
-        from seedmap.eval.slam_metrics import sync_by_time
+    if gt is not None and not follow:
+        from seedmap.eval.slam_metrics import gt_pose_at
 
-        dt = float(np.median(np.diff(ds.timestamps))) if len(ds.timestamps) > 1 else 2e-3
-        _, gt0 = sync_by_time(Trajectory(ds.timestamps[:1], np.eye(4)[None]), gt, 0.5 * dt)
-        if len(gt0):
-            first = gt0.poses[0]
+        g0 = gt_pose_at(ds.timestamps[0], gt, ds.timestamps)
+        first = first if g0 is None else g0
     from seedmap.viz.run_hooks import SlamRerun
 
     rlog = SlamRerun(rerun, calib, m, gt)  # a no-op without --rerun
