@@ -11,7 +11,8 @@ import pytest
 from seedmap.io.trajectory import write_tum
 from seedmap.phenotype.config import PhenotypeConfig
 from seedmap.phenotype.evaluate import match_panicles, score
-from seedmap.phenotype.table import COLUMNS, PLOT_COLUMNS, phenotype_result
+from seedmap.phenotype.run import phenotype_result
+from seedmap.phenotype.table import COLUMNS, PLOT_COLUMNS
 from seedmap.records import Trajectory
 from tests.helpers.cli import run_cli
 
@@ -71,9 +72,11 @@ def _check_table(rows, tol_xy=0.01):
 
 
 def test_table_of_a_synthetic_seed_map(tmp_path):
-    rows, frame, _ = phenotype_result(write_result(tmp_path / "r"), PhenotypeConfig())
-    assert frame.height_source == "world"
-    _check_table(rows)
+    ph = phenotype_result(write_result(tmp_path / "r"), PhenotypeConfig())
+    assert ph.frame.height_source == "world"
+    assert ph.calibration == "fast-shape" and ph.views is None  # no images: the count from the map's shape
+    _check_table(ph.rows)
+    assert all(r["seeds_in_view"] == "" for r in ph.rows)
 
 
 def test_a_camera_anchored_world_takes_the_height_from_the_mount(tmp_path):
@@ -81,8 +84,9 @@ def test_a_camera_anchored_world_takes_the_height_from_the_mount(tmp_path):
     first = np.eye(4)
     first[:3, :3] = R_SIM
     first[:3, 3] = (0.0, -0.7, 1.15)
-    rows, frame, _ = phenotype_result(write_result(tmp_path / "r", np.linalg.inv(first)), PhenotypeConfig())
-    assert frame.height_source == "camera_mount"
+    ph = phenotype_result(write_result(tmp_path / "r", np.linalg.inv(first)), PhenotypeConfig())
+    rows = ph.rows
+    assert ph.frame.height_source == "camera_mount"
     for r in rows:
         r["y_m"] -= 0.7  # y = 0 is the camera path here
     _check_table(rows)
@@ -93,7 +97,8 @@ def test_eval_matches_one_to_one_within_the_gate():
     gt = [{"x_m": x, "y_m": 0.0, "height_m": 1.1} for x in (0.01, 0.205, 0.5)]
     assert sorted(match_panicles(est, gt)) == [(0, 0), (1, 1)] or sorted(match_panicles(est, gt)) == [(0, 0), (2, 1)]
     for i, e in enumerate(est):
-        e.update(panicle_id=i, quality="ok", landmarks=100, length_m=0.2, width_m=0.05, seeds_est=1000.0)
+        e.update(panicle_id=i, quality="ok", landmarks=100, length_m=0.2, width_m=0.05, seeds_in_view=300,
+                 seeds_est=1000.0)
     for j, g in enumerate(gt):
         g.update(panicle_id=j, length_m=0.2, width_m=0.05, seeds=2000, seeds_visible=1000 if j < 2 else 5)
     m = score(est, gt)
@@ -112,11 +117,11 @@ def test_command_writes_the_table_and_plot_summaries(tmp_path, monkeypatch):
     lines = (tmp_path / "o" / "plots.csv").read_text().splitlines()
     assert lines[0] == ",".join(PLOT_COLUMNS)
     assert [ln.split(",")[3] for ln in lines[1:]] == ["2", "2"]
-    assert json.loads((tmp_path / "o" / "summary.json").read_text())["panicles"] == 4
+    assert json.loads((tmp_path / "o" / "panicles.json").read_text())["panicles"] == 4
 
 
 @pytest.mark.parametrize("case", ["no_result", "bad_landmarks", "bad_plots", "out_exists", "bad_set",
-                                  "bad_calibration", "eval_no_dataset", "eval_json_is_input"])
+                                  "bad_calibration", "needs_images", "eval_no_dataset", "eval_json_is_input"])
 def test_command_errors_are_one_line(tmp_path, monkeypatch, capsys, case):
     res = write_result(tmp_path / "r")
     args = ["phenotype", res, "--out", tmp_path / "o"]
@@ -135,6 +140,8 @@ def test_command_errors_are_one_line(tmp_path, monkeypatch, capsys, case):
     elif case == "bad_calibration":
         (tmp_path / "c.json").write_text('{"intercept": 1, "coef": {"leaves": 1}, "sigma_log": 0.1}')
         args += ["--set", f"calibration={tmp_path / 'c.json'}"]
+    elif case == "needs_images":  # counting in the best views needs the dataset
+        args += ["--set", "calibration=fast"]
     elif case == "eval_no_dataset":
         args = ["eval", "phenotype", res, tmp_path / "missing"]
     else:

@@ -1,4 +1,5 @@
-"""``seedmap phenotype`` (one row per panicle from a slam result) and ``seedmap eval phenotype``."""
+"""``seedmap phenotype`` (one row per panicle from a slam result), ``seedmap eval phenotype`` and
+``seedmap train phenotype-calibration``."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ from typing import List, Optional
 
 import typer
 
-from seedmap.cli.app import ConfigOpt, SetOpt, app, eval_app
+from seedmap.cli.app import ConfigOpt, SetOpt, app, eval_app, train_app
+from seedmap.errors import InputError
 from seedmap.outputs import check_output_file, is_seedmap_json
 
 
@@ -19,43 +21,70 @@ def _config(config: Optional[Path], set_: Optional[List[str]]):
     return load_config(PhenotypeConfig, config, set_ or [])
 
 
+def _images(result: Path, data: Optional[Path], detector: Optional[str]):  # noqa: ANN202 - Images | None
+    """The images of the run: ``data`` (else the dataset the result records), searched with ``detector`` (else
+    the result's own, with its ``detect`` settings)."""
+    from seedmap.config import load_config
+    from seedmap.phenotype.run import SUMMARY, dataset_images
+    from seedmap.slam.config import SlamConfig
+
+    if data is None:
+        try:
+            data = Path(json.loads((result / SUMMARY).read_text(encoding="utf-8"))["dataset"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+        if not data.exists():
+            return None
+    cfg = load_config(SlamConfig, result / "config.yaml", []) if (result / "config.yaml").is_file() else SlamConfig()
+    name = detector or cfg.detector
+    if name is None or cfg.matcher not in (None, "seeds"):
+        raise InputError("the result was not mapped with seeds: give --detector to count seeds in its images", result)
+    return dataset_images(data, name, cfg.detect, cfg.dataset)
+
+
+DataOpt = typer.Option(None, "--data", help="The dataset the result was mapped from (default: the one it records); "
+                                            "its images give each panicle's best view and seed count.")
+DetectorOpt = typer.Option(None, "--detector", "-d", help="Seed detector for the views (default: the result's).")
+
+
 @app.command("phenotype")
 def phenotype_cmd(
     result: Path = typer.Argument(..., help="A folder written by `seedmap slam`."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Output folder (default RESULT/../NAME_phenotype)."),
+    data: Optional[Path] = DataOpt,
+    detector: Optional[str] = DetectorOpt,
     plots: Optional[Path] = typer.Option(None, "--plots", help="CSV plot,start,end (m along the row): per-plot summary."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace a phenotype folder seedmap wrote."),
 ) -> None:
-    """One row per panicle (position, height, length, width, volume, tilt, seed count, quality): panicles.csv."""
+    """One row per panicle (position, height, length, width, volume, tilt, seed count, quality): panicles.csv,
+    thumbnails of each panicle's best view, phenotype.html. `seedmap slam` writes the same into its result."""
     from seedmap.config import dump_config
-    from seedmap.io.atomic import atomic_write_text
     from seedmap.outputs import output_dir
-    from seedmap.phenotype.table import (COLUMNS, PLOT_COLUMNS, phenotype_result, plot_summaries, read_plots,
-                                         rows_csv)
+    from seedmap.phenotype.run import phenotype_result, write_phenotype
+    from seedmap.phenotype.table import read_plots
 
     cfg = _config(config, set_)
     out = out if out is not None else result.parent / f"{result.name}_phenotype"
     plot_list = read_plots(plots) if plots is not None else None
-    rows, frame, cal = phenotype_result(result, cfg)
-    with output_dir(out, "phenotype", inputs=[result, plots, config], overwrite=overwrite) as tmp:
-        atomic_write_text(tmp / "panicles.csv", rows_csv(rows, COLUMNS))
-        if plot_list is not None:
-            atomic_write_text(tmp / "plots.csv", rows_csv(plot_summaries(rows, plot_list), PLOT_COLUMNS))
-        summary = {"panicles": len(rows), "panicles_ok": sum(r["quality"] == "ok" for r in rows),
-                   "height_source": frame.height_source, "calibration": cfg.calibration,
-                   "seeds_est": float(sum(r["seeds_est"] for r in rows))}
-        atomic_write_text(tmp / "summary.json", json.dumps(summary, indent=2) + "\n")
+    if not result.is_dir():
+        raise InputError("result folder not found", result)
+    images = _images(result, data, detector)
+    ph = phenotype_result(result, cfg, images)
+    with output_dir(out, "phenotype", inputs=[result, plots, config, data], overwrite=overwrite) as tmp:
+        write_phenotype(tmp, ph, images, plot_list, result=str(result.resolve()))
         dump_config(cfg, tmp / "config.yaml")
-    typer.echo(f"{len(rows)} panicles ({summary['panicles_ok']} ok), height from the {frame.height_source}, "
-               f"~{summary['seeds_est']:.0f} seeds: {out / 'panicles.csv'}")
+    s = ph.summary()
+    typer.echo(f"{s['panicles']} panicles ({s['panicles_ok']} ok), height from the {s['height_source']}, "
+               f"~{s['seeds_est']:.0f} seeds (calibration {s['calibration']}): {out / 'panicles.csv'}")
 
 
 @eval_app.command("phenotype")
 def eval_phenotype_cmd(
     result: Path = typer.Argument(..., help="A folder written by `seedmap slam`."),
     dataset: Path = typer.Argument(..., help="The simulated dataset it ran on (gt/seeds.csv)."),
+    detector: Optional[str] = DetectorOpt,
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the scores and per-panicle errors here."),
@@ -68,10 +97,38 @@ def eval_phenotype_cmd(
     if json_out is not None:
         check_output_file(json_out, [result, dataset, config], overwrite, lambda p: is_seedmap_json(p, "matched"),
                           what="JSON file")
-    m = evaluate_phenotype(result, dataset, _config(config, set_))
+    if not result.is_dir():
+        raise InputError("result folder not found", result)
+    m = evaluate_phenotype(result, dataset, _config(config, set_), _images(result, dataset, detector))
     for k, v in m.items():
         if k != "per_panicle":
             typer.echo(f"{k:28s} {v:.4f}" if isinstance(v, float) else f"{k:28s} {v}")
     if json_out is not None:
         atomic_write_text(json_out, json.dumps(m, indent=1, default=float) + "\n")
         typer.echo(f"scores in {json_out}")
+
+
+@train_app.command("phenotype-calibration")
+def train_phenotype_calibration_cmd(
+    sources: List[Path] = typer.Argument(..., help="panicles.csv files with a seeds_counted column filled in for "
+                                                   "the panicles counted by hand, or `seedmap eval phenotype --json` "
+                                                   "files of simulated runs."),
+    out: Path = typer.Option(..., "--out", "-o", help="Calibration file (.json) to write."),
+    features: str = typer.Option("seeds_in_view", "--features",
+                                 help="Comma-separated panicle columns the count is fitted on (in logs): "
+                                      "seeds_in_view, landmarks, length_m, width_m."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace a calibration file seedmap wrote."),
+) -> None:
+    """Fit the seed-count calibration of the phenotype table; use it with `--set phenotype.calibration=FILE`
+    (slam) or `--set calibration=FILE` (phenotype)."""
+    from seedmap.io.atomic import atomic_write_text
+    from seedmap.phenotype.calibrate import fit_calibration
+
+    if out.suffix.lower() != ".json":
+        raise InputError("the calibration file must end in .json", out)
+    check_output_file(out, list(sources), overwrite, lambda p: is_seedmap_json(p, "sigma_log"),
+                      what="calibration file")
+    cal = fit_calibration(sources, [f.strip() for f in features.split(",") if f.strip()])
+    atomic_write_text(out, json.dumps(cal, indent=2) + "\n")
+    typer.echo(f"calibration written to {out}: {cal['panicles']} panicles, sigma_log {cal['sigma_log']:.3f}, "
+               f"leave-one-out MAPE {100 * cal['loo_mape']:.1f} %")

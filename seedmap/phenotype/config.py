@@ -18,5 +18,8 @@ class PhenotypeConfig(ConfigModel):
     split_width_m: float = Field(0.12, gt=0)
     #: camera height above the ground (m), used when the trajectory is not in a z-up world with the ground at z = 0
     mount_height_m: float = Field(1.15, gt=0)
-    #: seed-count calibration: a JSON file, or the name of one shipped in seedmap/phenotype/calibrations
-    calibration: str = "fast"
+    #: seed-count calibration: a JSON file, the name of one shipped in seedmap/phenotype/calibrations, or auto
+    #: (``fast`` when the images are at hand: seeds counted in each panicle's best view; else ``fast-shape``)
+    calibration: str = "auto"
+    #: every how many frames that see a panicle whole its seeds are counted (the most counted gives the view)
+    view_stride: int = Field(1, ge=1)

@@ -8,7 +8,6 @@ centre is visible in the left and the right image of the same frame in at least 
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -85,7 +84,8 @@ def score(est: list[dict], gt: list[dict]) -> dict:
         e, g = est[i], gt[j]
         per.append({
             "panicle_id": e["panicle_id"], "gt_panicle_id": g["panicle_id"], "quality": e["quality"],
-            "landmarks": e["landmarks"], "length_m": e["length_m"], "width_m": e["width_m"], "seeds": g["seeds"], "seeds_visible": g["seeds_visible"],
+            "landmarks": e["landmarks"], "length_m": e["length_m"], "width_m": e["width_m"],
+            "seeds_in_view": e["seeds_in_view"], "seeds": g["seeds"], "seeds_visible": g["seeds_visible"],
             "seeds_est": e["seeds_est"],
             "position_err_m": math.dist((e["x_m"], e["y_m"], e["height_m"]), (g["x_m"], g["y_m"], g["height_m"])),
             "along_err_m": e["x_m"] - g["x_m"], "across_err_m": e["y_m"] - g["y_m"],
@@ -112,33 +112,13 @@ def score(est: list[dict], gt: list[dict]) -> dict:
     }
 
 
-def evaluate_phenotype(result: Path, dataset: Path, cfg) -> dict:
-    """Phenotype table of ``result`` scored against ``dataset``'s GT (see :func:`score`)."""
-    from seedmap.phenotype.table import phenotype_result
+def evaluate_phenotype(result: Path, dataset: Path, cfg, images=None) -> dict:  # noqa: ANN001
+    """Phenotype table of ``result`` scored against ``dataset``'s GT (see :func:`score`); ``images``
+    (:class:`seedmap.phenotype.run.Images`) for the seeds counted in each panicle's best view."""
+    from seedmap.phenotype.run import phenotype_result
 
-    rows, frame, cal = phenotype_result(result, cfg)
-    m = score(rows, gt_panicles(Path(dataset), frame))
-    m["height_source"] = frame.height_source
-    m["calibration"] = cfg.calibration
+    ph = phenotype_result(result, cfg, images)
+    m = score(ph.rows, gt_panicles(Path(dataset), ph.frame))
+    m["height_source"] = ph.frame.height_source
+    m["calibration"] = ph.calibration
     return m
-
-
-def fit_calibration(eval_jsons: list[Path], features: tuple[str, ...] = ("landmarks", "length_m")) -> dict:
-    """Least squares ``log(seeds) = intercept + sum coef_k log(feature_k)`` over the matched ``ok`` panicles of
-    ``seedmap eval phenotype --json`` files; ``sigma_log`` is the residual standard deviation."""
-    x, y = [], []
-    for p in eval_jsons:
-        for r in json.loads(Path(p).read_text(encoding="utf-8"))["per_panicle"]:
-            if r["quality"] == "ok":
-                x.append([math.log(r[k]) for k in features])
-                y.append(math.log(r["seeds"]))
-    if len(x) < len(features) + 3:
-        raise InputError(f"{len(x)} matched ok panicles: too few to fit a calibration", eval_jsons[0])
-    a = np.c_[np.ones(len(x)), np.asarray(x)]
-    coef, *_ = np.linalg.lstsq(a, np.asarray(y), rcond=None)
-    res = np.asarray(y) - a @ coef
-    return {"kind": "seedmap-phenotype-calibration", "version": 1,
-            "model": "log(seeds) = intercept + sum coef[k] * log(k)", "intercept": float(coef[0]),
-            "coef": {k: float(c) for k, c in zip(features, coef[1:])},
-            "sigma_log": float(res.std(ddof=len(features) + 1)), "panicles": len(x),
-            "samples": [Path(p).stem for p in eval_jsons]}

@@ -13,13 +13,14 @@ import numpy as np
 
 from seedmap.errors import InputError
 from seedmap.phenotype.config import PhenotypeConfig
-from seedmap.phenotype.shape import RowFrame, ellipsoid_volume, hull_volume, panicle_shape, row_frame
+from seedmap.phenotype.shape import RowFrame, ellipsoid_volume, hull_volume, panicle_shape
 
 #: columns of landmarks.csv the table needs
 LANDMARK_COLUMNS = ("landmark_id", "cluster_id", "x", "y", "z", "n_obs")
 #: columns of panicles.csv, in order
 COLUMNS = ("panicle_id", "x_m", "y_m", "height_m", "length_m", "width_m", "hull_volume_cm3",
-           "ellipsoid_volume_cm3", "tilt_deg", "landmarks", "frames", "seeds_est", "seeds_sd", "quality")
+           "ellipsoid_volume_cm3", "tilt_deg", "landmarks", "frames", "seeds_in_view", "view_frame", "seeds_est",
+           "seeds_sd", "quality")
 #: a panicle reaching this close (m) to either end of the mapped stretch of row may be cut at the view border
 EDGE_M = 0.02
 #: ... and is flagged ``cut`` when it was also seen in fewer than this fraction of the median panicle's frames
@@ -31,7 +32,7 @@ MAX_SPLIT = 4
 MERGE_OVERLAP = 0.5
 MERGE_GAP_M = 0.05
 #: panicle columns a seed-count calibration may use (in logs)
-COUNT_FEATURES = ("landmarks", "length_m", "width_m")
+COUNT_FEATURES = ("landmarks", "length_m", "width_m", "seeds_in_view")
 #: folder of the shipped seed-count calibrations
 CALIBRATIONS = Path(__file__).parent / "calibrations"
 
@@ -90,7 +91,7 @@ def load_calibration(name: str) -> dict:
 def estimate_seeds(features: dict, cal: dict) -> tuple[float, float]:
     """Seed count and its 1-sigma uncertainty: ``log N = intercept + sum coef_k log(feature_k)`` with
     log-normal residuals of standard deviation ``sigma_log``."""
-    if any(features[k] <= 0 for k in cal["coef"]):
+    if any(not features[k] > 0 for k in cal["coef"]):  # zero, or NaN (no view)
         return 0.0, 0.0
     n = math.exp(float(cal["intercept"]) + sum(float(c) * math.log(features[k]) for k, c in cal["coef"].items()))
     return n, n * math.sqrt(math.expm1(float(cal["sigma_log"]) ** 2))
@@ -147,12 +148,19 @@ def split_clusters(xyz_row: np.ndarray, cluster: np.ndarray, cfg: PhenotypeConfi
     return out
 
 
-def panicle_rows(lm: Landmarks, frame: RowFrame, cfg: PhenotypeConfig, cal: dict) -> list[dict]:
-    """One dict per panicle with the :data:`COLUMNS` (sorted along the row)."""
+def panicle_groups(lm: Landmarks, frame: RowFrame, cfg: PhenotypeConfig) -> list[tuple[np.ndarray, bool]]:
+    """Landmark index arrays, one per panicle, sorted along the row, and whether each may hold merged panicles."""
     p = frame.to_row(lm.xyz)
-    groups = split_clusters(p, join_fragments(p[:, [0, 2]], lm.cluster), cfg)
+    return split_clusters(p, join_fragments(p[:, [0, 2]], lm.cluster), cfg)
+
+
+def panicle_rows(lm: Landmarks, frame: RowFrame, cfg: PhenotypeConfig, cal: dict,
+                 groups: list[tuple[np.ndarray, bool]], views: list | None = None) -> list[dict]:
+    """One dict per panicle (``groups`` of :func:`panicle_groups`) with the :data:`COLUMNS`; ``views``: the
+    best view of each (:mod:`seedmap.phenotype.views`), None without images (``seeds_in_view`` is then NaN)."""
     if not groups:
         return []
+    p = frame.to_row(lm.xyz)
     lo, hi = float(p[:, 0].min()), float(p[:, 0].max())
     frames = [int(lm.n_obs[idx].max()) for idx, _ in groups]
     median_frames = float(np.median(frames))
@@ -168,7 +176,10 @@ def panicle_rows(lm: Landmarks, frame: RowFrame, cfg: PhenotypeConfig, cal: dict
             flags.append("merged")
         if len(idx) < cfg.few_landmarks:
             flags.append("few")
-        n, sd = estimate_seeds({"landmarks": len(idx), "length_m": s.length_m, "width_m": s.width_m}, cal)
+        view = views[i] if views is not None else None
+        in_view = float(view.count) if view is not None else float("nan")
+        n, sd = estimate_seeds({"landmarks": len(idx), "length_m": s.length_m, "width_m": s.width_m,
+                                "seeds_in_view": in_view}, cal)
         rows.append({
             "panicle_id": i, "x_m": s.centre[0],
             # seeds seen from one side: the mean of a round cross-section's front half lies width/pi nearer
@@ -176,8 +187,9 @@ def panicle_rows(lm: Landmarks, frame: RowFrame, cfg: PhenotypeConfig, cal: dict
             "height_m": s.centre[2] - frame.ground(float(s.centre[0]), float(s.centre[1])), "length_m": s.length_m, "width_m": s.width_m,
             "hull_volume_cm3": hull_volume(q) * 1e6,
             "ellipsoid_volume_cm3": ellipsoid_volume(s.length_m, s.width_m) * 1e6,
-            "tilt_deg": s.tilt_deg, "landmarks": len(idx), "frames": nf, "seeds_est": n, "seeds_sd": sd,
-            "quality": "+".join(flags) or "ok",
+            "tilt_deg": s.tilt_deg, "landmarks": len(idx), "frames": nf,
+            "seeds_in_view": view.count if view is not None else "", "view_frame": view.frame if view is not None else "",
+            "seeds_est": n, "seeds_sd": sd, "quality": "+".join(flags) or "ok",
         })
     return rows
 
@@ -225,16 +237,3 @@ def plot_summaries(rows: list[dict], plots: list[tuple[str, float, float]]) -> l
                     "length_m": mean("length_m"), "width_m": mean("width_m"), "seeds_est": seeds,
                     "seeds_per_panicle": seeds / len(inside) if inside else float("nan")})
     return out
-
-
-def phenotype_result(result: Path, cfg: PhenotypeConfig) -> tuple[list[dict], RowFrame, dict]:
-    """Panicle rows of a ``seedmap slam`` result folder, its row frame and the calibration used."""
-    from seedmap.io.trajectory import read_tum
-
-    result = Path(result)
-    if not result.is_dir():
-        raise InputError("result folder not found", result)
-    lm = read_landmarks(result / "landmarks.csv")
-    frame = row_frame(read_tum(result / "trajectory.tum"), cfg.mount_height_m)
-    cal = load_calibration(cfg.calibration)
-    return panicle_rows(lm, frame, cfg, cal), frame, cal

@@ -14,6 +14,7 @@ from seedmap.associate.base import GateConfig
 from seedmap.associate.config import SemanticConfig
 from seedmap.detect.config import DetectConfig
 from seedmap.io.options import DatasetOptions
+from seedmap.phenotype.config import PhenotypeConfig
 from seedmap.config import ConfigModel
 
 
@@ -91,6 +92,8 @@ class SlamConfig(ConfigModel):
     dataset: DatasetOptions = Field(default_factory=DatasetOptions)
     #: settings of the seed detector (seedmap.detect.config.DetectConfig), e.g. ``--set detect.cnn.threshold=0.4``
     detect: DetectConfig = Field(default_factory=DetectConfig)
+    #: the phenotype table written with a seeds run (seedmap.phenotype.config.PhenotypeConfig)
+    phenotype: PhenotypeConfig = Field(default_factory=PhenotypeConfig)
     #: parameters of the descriptor baselines (seedmap.associate.features.FeatureMatcherConfig)
     features: dict[str, Any] = Field(default_factory=dict)
     #: process at most this many frames (None = all)

@@ -87,6 +87,7 @@ def run_slam(
     inputs: Sequence[str | Path] = (),
     follow: bool = False,
     idle_timeout_s: float = 10.0,
+    phenotype: bool = True,
 ) -> SlamResult:
     """Run the SLAM pipeline on ``dataset`` and write the results into ``out`` (None: no files).
 
@@ -97,7 +98,9 @@ def run_slam(
     ``follow``: ``dataset`` is a folder a robot is writing (:mod:`seedmap.slam.follow`): frames are processed as
     they become complete, ``out`` gets the online trajectory per frame and the map every few frames, and the run
     ends after ``idle_timeout_s`` without a new frame or on Ctrl-C, with the complete outputs of what it
-    processed (no ground truth is read)."""
+    processed (no ground truth is read).
+    ``phenotype``: with seeds, also write the phenotype table of the map (:mod:`seedmap.phenotype.run`:
+    panicles.csv, panicles.json, thumbs/, phenotype.html)."""
     from seedmap.associate import make_matcher
     from seedmap.io.stereo_order import check_stereo_order
     from seedmap.io.trajectory import gt_overlapping
@@ -151,6 +154,11 @@ def run_slam(
     timings: dict[str, list[float]] = {}
     # decode + detection of frame i+1 overlap the association of frame i (seedmap.slam.stream)
     detect = getattr(m, "detect_frame", None)
+    seeds_seen = None  # the left image's seeds of every frame, for the phenotype table's views
+    if phenotype and out is not None and det is not None and detect is not None:
+        from seedmap.phenotype.run import FrameSeeds
+
+        seeds_seen = FrameSeeds()
     frames = Prefetch(prepare(load, detect), indices, cfg.prefetch_frames, stop=stop)
     live = _live_writer(out, overwrite) if follow and out is not None else None
     stop_reason = None
@@ -162,6 +170,8 @@ def run_slam(
             if i == 0:
                 check_stereo_order(frame.left, frame.right, dataset)
             feats = m.features(frame, p.det) if detect is not None else m.features(frame)
+            if seeds_seen is not None:
+                seeds_seen.add(frame.index, frame.timestamp, p.det.left.ellipses)
             res = slam.register_frame(feats)
             tm = {**p.timings_ms, **feats.timings_ms, **res.timings_ms}
             for k, v in tm.items():
@@ -219,11 +229,25 @@ def run_slam(
         with outputs.output_dir(out, "slam", ins, overwrite or live is not None) as tmp:
             dump_config(cfg, tmp / "config.yaml")
             write_outputs(tmp, result, online, gt, lm, rows, cfg, dataset)
+            if seeds_seen is not None:
+                _write_phenotype(tmp, cfg, calib, seeds_seen, load, dataset, detector)
             if html_report:
                 from seedmap.viz.run_hooks import slam_html_report
 
                 slam_html_report(tmp, result, gt, lm, rows, timings, dataset)
     return result
+
+
+def _write_phenotype(folder: Path, cfg: SlamConfig, calib, seeds_seen, load, dataset,  # noqa: ANN001
+                     detector: str) -> None:
+    """The phenotype table of the map just written into ``folder``, each panicle's view from the seeds the
+    run detected (:mod:`seedmap.phenotype.run`)."""
+    from seedmap.phenotype.run import Images, phenotype_result, write_phenotype
+
+    idx, ts = seeds_seen.timestamps()
+    images = Images(calib, idx, ts, seeds_seen, lambda f: load(f).left)
+    ph = phenotype_result(folder, cfg.phenotype, images)
+    write_phenotype(folder, ph, images, dataset=str(Path(dataset).resolve()), detector=detector)
 
 
 def _live_writer(out: Path, overwrite: bool):  # noqa: ANN202 - seedmap.slam.follow.LiveWriter

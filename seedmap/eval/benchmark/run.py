@@ -79,7 +79,7 @@ def slam_job(dataset: str, out: str, matcher: str, detector: str | None, slam_ov
             return "ok", ""
         config = _slam_config(slam_overrides, features if matcher in FEATURE_KINDS else None)
         run_slam(dataset, out_p, matcher=matcher, detector=detector or "gt", config=config,
-                 overwrite=out_p.exists(), progress=False, html_report=html_report)
+                 overwrite=out_p.exists(), progress=False, html_report=html_report, phenotype=False)
         return "ok", ""
     except SeedmapError as e:
         msg = str(e)
