@@ -41,15 +41,18 @@ def phenotype_cmd(
     rows, frame, cal = phenotype_result(result, cfg)
     with output_dir(out, "phenotype", inputs=[result, plots, config], overwrite=overwrite) as tmp:
         atomic_write_text(tmp / "panicles.csv", rows_csv(rows, COLUMNS))
-        if plot_list is not None:
-            atomic_write_text(tmp / "plots.csv", rows_csv(plot_summaries(rows, plot_list), PLOT_COLUMNS))
+        plot_rows = plot_summaries(rows, plot_list) if plot_list is not None else None
+        if plot_rows is not None:
+            atomic_write_text(tmp / "plots.csv", rows_csv(plot_rows, PLOT_COLUMNS))
         summary = {"panicles": len(rows), "panicles_ok": sum(r["quality"] == "ok" for r in rows),
                    "height_source": frame.height_source, "calibration": cfg.calibration,
                    "seeds_est": float(sum(r["seeds_est"] for r in rows))}
         atomic_write_text(tmp / "summary.json", json.dumps(summary, indent=2) + "\n")
         dump_config(cfg, tmp / "config.yaml")
+        from seedmap.phenotype.report import write_phenotype_report
+        write_phenotype_report(tmp, rows, plot_rows, title=f"seedmap phenotype: {result.name}")
     typer.echo(f"{len(rows)} panicles ({summary['panicles_ok']} ok), height from the {frame.height_source}, "
-               f"~{summary['seeds_est']:.0f} seeds: {out / 'panicles.csv'}")
+               f"~{summary['seeds_est']:.0f} seeds: {out / 'panicles.csv'}, report {out / 'phenotype.html'}")
 
 
 @eval_app.command("phenotype")
