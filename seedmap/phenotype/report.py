@@ -37,7 +37,8 @@ MIN_HALF_SPAN_M = 0.25
 _CSS = """
 table.panicles { border-collapse: collapse; font-size: 0.85em; } table.panicles th, table.panicles td {
   padding: 2px 7px; border-bottom: 1px solid #eee; text-align: right; font-variant-numeric: tabular-nums; }
-table.panicles th { position: sticky; top: 0; background: #fafafa; } table.panicles tr.flagged td { background: #fff6e0; }
+table.panicles th { position: sticky; top: 0; background: #fafafa; }
+table.panicles tr.flagged td { background: #fff6e0; }
 table.panicles td.text { text-align: left; } .tablewrap { max-height: 32em; overflow: auto; }
 .thumbs { display: flex; flex-wrap: wrap; gap: 10px; } .thumbs figure { margin: 0; width: 150px; }
 .thumbs figure img { width: 150px; } .thumbs figcaption { font-size: 0.8em; }
@@ -121,8 +122,7 @@ def row_profile_figure(rows: Sequence[dict], plot_rows: Sequence[dict] | None = 
                         edgecolors=colours[sel] if not filled else "k", linewidths=0.5 if filled else 1.6, zorder=3)
     for i in np.flatnonzero(at):
         ax0.annotate(str(rows[i].get("panicle_id", i)), (x[i], h[i]), xytext=(0, np.sqrt(size[i]) / 2 + 2),
-                     textcoords="offset points",
-                     ha="center", fontsize=7, color="0.25")
+                     textcoords="offset points", ha="center", fontsize=7, color="0.25")
     # the colour bar beside the top axis, an empty slot of the same width beside the bottom one: x stays aligned
     cax = make_axes_locatable(ax0).append_axes("right", size="2%", pad=0.1)
     make_axes_locatable(ax1).append_axes("right", size="2%", pad=0.1).axis("off")
@@ -139,8 +139,7 @@ def row_profile_figure(rows: Sequence[dict], plot_rows: Sequence[dict] | None = 
     for sel, filled in ((bars & ok, True), (bars & ~ok, False)):
         if sel.any():
             ax1.bar(x[sel], seeds[sel], width=width, yerr=err[sel], capsize=2, color="tab:green" if filled else "none",
-                    edgecolor="tab:green", hatch=None if filled else "///", error_kw={"lw": 0.8}, zorder=3,
-                    label="ok" if filled else "flagged")
+                    edgecolor="tab:green", hatch=None if filled else "///", error_kw={"lw": 0.8}, zorder=3)
     ax1.set_ylabel("estimated seeds (±1 sd)")
     ax1.set_xlabel("position along the row x (m)")
     ax1.set_ylim(bottom=0)
@@ -207,7 +206,8 @@ def thumbnails_html(folder: Path, rows: Sequence[dict]) -> str:
         if uri is None:
             continue
         s, sd = _num(r.get("seeds_est")), _num(r.get("seeds_sd"))
-        est = (f"~{s:.0f}" + (f" ± {sd:.0f}" if math.isfinite(sd) else "") + " seeds") if math.isfinite(s) else "seeds n/a"
+        est = "seeds n/a" if not math.isfinite(s) else (f"~{s:.0f}" + (f" ± {sd:.0f}" if math.isfinite(sd) else "")
+                                                           + " seeds")
         figs.append(figure_html(f"#{pid} · {est} · {r.get('quality', '?')}", uri))
     return '<div class="thumbs">\n' + "\n".join(figs) + "\n</div>" if figs else ""
 
