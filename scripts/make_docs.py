@@ -214,11 +214,16 @@ def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
 
 
 #: the phenotype page's per-range columns: (JSON key, header, formatter)
-_PHENO_COLS = (("precision", "precision", num), ("recall", "recall", num),
+def fixed(x: float | None, digits: int = 3) -> str:
+    """A number with ``digits`` decimals; ``n/a`` for missing."""
+    return "n/a" if x is None else f"{x:.{digits}f}"
+
+
+_PHENO_COLS = (("precision", "precision", fixed), ("recall", "recall", fixed),
                ("height_err_median_m", "height (cm)", lambda v: num(None if v is None else 100 * v, 2)),
                ("length_rel_err_median", "length", pct), ("width_rel_err_median", "width", pct),
                ("seeds_mape", "seeds MAPE", pct), ("landmarks_mape_visible", "landmarks vs visible", pct),
-               ("visible_fraction", "visible fraction", lambda v: num(v, 2)))
+               ("visible_fraction", "visible fraction", lambda v: fixed(v, 2)))
 
 
 def page_phenotype(cmds: dict[str, str]) -> tuple[str, str] | None:
@@ -250,7 +255,7 @@ def page_phenotype(cmds: dict[str, str]) -> tuple[str, str] | None:
         return [name, split, f"{r['panicles_est']} / {r['panicles_gt_expected']}",
                 *[f(r.get(k)) for k, _, f in _PHENO_COLS], *extra]
 
-    rows = [row(r["name"], r["split"], r, [num(r.get("phenotype_s"), 2), num(r.get("phenotype_vs_slam_ratio"), 2)])
+    rows = [row(r["name"], r["split"], r, [fixed(r.get("phenotype_s"), 2), num(r.get("phenotype_vs_slam_ratio"), 2)])
             for r in d["ranges"]]
     for split in ("held-out", "tuning"):
         if (p := (d.get("summary") or {}).get(split)) and len(p["ranges"]) > 1:
@@ -632,7 +637,7 @@ def glance() -> str:
                      f"< 50 %): {txt}", "[sweep](docs/results/sweep.md)"])
     if (d := load("phenotype.json")) and (ho := d["summary"].get("held-out")):
         rows.append([f"phenotype table, `{d.get('detector', '?')}`, {len(ho['ranges'])} held-out ranges",
-                     f"panicles: precision {num(ho['precision'])}, recall {num(ho['recall'])}; median error of "
+                     f"panicles: precision {fixed(ho['precision'])}, recall {fixed(ho['recall'])}; median error of "
                      f"height {num(100 * ho['height_err_median_m'], 2)} cm, length {pct(ho['length_rel_err_median'])}, "
                      f"width {pct(ho['width_rel_err_median'])}; seed-count MAPE {pct(ho['seeds_mape'])} "
                      f"({pct(ho['visible_fraction'], 0)} of the seeds visible)",
