@@ -130,7 +130,7 @@ def row_profile_figure(rows: Sequence[dict], plot_rows: Sequence[dict] | None = 
     ax0.set_ylabel("height above ground (m)")
     ax0.legend(handles=[Line2D([], [], ls="", marker="o", mfc="0.6", mec="k", label="ok"),
                         Line2D([], [], ls="", marker="o", mfc="none", mec="0.3", mew=1.6, label="flagged")],
-               fontsize=8, loc="lower right", title=f"diameter ∝ length ({100 * longest:.0f} cm max)",
+               fontsize=8, loc="best", framealpha=0.7, title=f"diameter ∝ length ({100 * longest:.0f} cm max)",
                title_fontsize=8)
     xs = np.sort(x[np.isfinite(x)])
     width = 0.6 * float(np.median(np.diff(xs))) if xs.size > 1 and np.median(np.diff(xs)) > 0 else 0.03
