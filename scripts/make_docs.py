@@ -213,6 +213,61 @@ def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
     return "Robustness sweep (field conditions)", "\n".join(parts)
 
 
+#: the phenotype page's per-range columns: (JSON key, header, formatter)
+def fixed(x: float | None, digits: int = 3) -> str:
+    """A number with ``digits`` decimals; ``n/a`` for missing."""
+    return "n/a" if x is None else f"{x:.{digits}f}"
+
+
+_PHENO_COLS = (("precision", "precision", fixed), ("recall", "recall", fixed),
+               ("height_err_median_m", "height (cm)", lambda v: num(None if v is None else 100 * v, 2)),
+               ("length_rel_err_median", "length", pct), ("width_rel_err_median", "width", pct),
+               ("seeds_mape", "seeds MAPE", pct), ("landmarks_mape_visible", "landmarks vs visible", pct),
+               ("visible_fraction", "visible fraction", lambda v: fixed(v, 2)))
+
+
+def page_phenotype(cmds: dict[str, str]) -> tuple[str, str] | None:
+    d = load("phenotype.json")
+    if d is None:
+        return None
+    cal = (d.get("config") or {}).get("calibration", "?")
+    parts = [source("phenotype.json", cmds),
+             f"Commit `{d.get('commit', '?')}`, {d.get('date', '?')}, {d.get('machine', 'machine not recorded')}. "
+             f"`seedmap slam DATA --detector {d.get('detector', '?')}` on each simulated range, then `seedmap "
+             f"phenotype` and `seedmap eval phenotype` (seed-count calibration `{cal}`; method: "
+             "[docs/method/phenotype.md](../method/phenotype.md)). Medians of absolute errors over the matched "
+             "panicles; seed-count MAPE against the true number of seeds on the panicle, the landmark count against "
+             "its visible seeds; visible fraction: visible over true seeds of the matched panicles. `tuning` ranges "
+             "were used to set the table's rules and calibration, `held-out` ones never.\n"]
+    ho = (d.get("summary") or {}).get("held-out")
+    if ho:
+        labels = dict((k, h) for k, h, _ in _PHENO_COLS)
+        fmts = dict((k, f) for k, _, f in _PHENO_COLS)
+        rows = [[labels[k], fmts[k](ho.get(k)), ("≥ " if t["kind"] == "min" else "≤ ") + fmts[k](t["bound"]),
+                 "yes" if t["met"] else "**no**"] for k, t in ho["targets"].items()]
+        rows.append(["visible fraction", fmts["visible_fraction"](ho.get("visible_fraction")), "(stated)", ""])
+        parts += [f"## Held-out ranges ({', '.join(ho['ranges'])}), pooled\n",
+                  f"{ho['matched']} matched panicles of {ho['panicles_est']} in the tables and "
+                  f"{ho['panicles_gt_expected']} expected (GT panicles with at least 20 visible seeds).\n",
+                  table(["score", "held-out", "target", "met"], rows)]
+
+    def row(name: str, split: str, r: dict, extra: list[str]) -> list[str]:
+        return [name, split, f"{r['panicles_est']} / {r['panicles_gt_expected']}",
+                *[f(r.get(k)) for k, _, f in _PHENO_COLS], *extra]
+
+    rows = [row(r["name"], r["split"], r, [fixed(r.get("phenotype_s"), 2), num(r.get("phenotype_vs_slam_ratio"), 2)])
+            for r in d["ranges"]]
+    for split in ("held-out", "tuning"):
+        if (p := (d.get("summary") or {}).get(split)) and len(p["ranges"]) > 1:
+            rows.append(row(f"**all {split}, pooled**", "", p, ["", ""]))
+    parts += ["\n## Per range\n",
+              "Panicles: in the table / expected. Phenotype step: `seedmap phenotype` in-process (table, CSV files, "
+              "phenotype.html), wall seconds and its ratio to the SLAM run's own time on the range.\n",
+              table(["range", "split", "panicles", *[h for _, h, _ in _PHENO_COLS], "phenotype step (s)",
+                     "/ SLAM time"], rows)]
+    return "Phenotype table (panicles from the seed map)", "\n".join(parts)
+
+
 def _detect_accuracy(d: dict, cmds: dict[str, str]) -> str:
     rows, tot = [], {"tp": 0, "n_det": 0, "n_gt": 0}
     for name, v in d["datasets"].items():
@@ -536,6 +591,7 @@ PAGES: dict[str, Callable[[dict[str, str]], tuple[str, str] | None]] = {
     "demo.md": page_demo,
     "paper.md": page_paper,
     "sweep.md": page_sweep,
+    "phenotype.md": page_phenotype,
     "detect.md": page_detect,
     "photos.md": page_photos,
     "slam.md": page_slam,
@@ -579,6 +635,13 @@ def glance() -> str:
         rows.append([f"SLAM under field conditions ({', '.join(summ)}), {num(cfg.get('length'))} m ranges, "
                      f"{len(cfg.get('seeds', []))} world seeds", "fails first at (mean GT-validated fraction "
                      f"< 50 %): {txt}", "[sweep](docs/results/sweep.md)"])
+    if (d := load("phenotype.json")) and (ho := d["summary"].get("held-out")):
+        rows.append([f"phenotype table, `{d.get('detector', '?')}`, {len(ho['ranges'])} held-out ranges",
+                     f"panicles: precision {fixed(ho['precision'])}, recall {fixed(ho['recall'])}; median error of "
+                     f"height {num(100 * ho['height_err_median_m'], 2)} cm, length {pct(ho['length_rel_err_median'])}, "
+                     f"width {pct(ho['width_rel_err_median'])}; seed-count MAPE {pct(ho['seeds_mape'])} "
+                     f"({pct(ho['visible_fraction'], 0)} of the seeds visible)",
+                     "[phenotype](docs/results/phenotype.md)"])
     if d := load("detect_accuracy.json"):
         f1s, kps, tot = [], [], {"tp": 0, "n_det": 0, "n_gt": 0}
         for v in d["datasets"].values():

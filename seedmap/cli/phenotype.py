@@ -73,11 +73,13 @@ def phenotype_cmd(
     images = _images(result, data, detector)
     ph = phenotype_result(result, cfg, images)
     with output_dir(out, "phenotype", inputs=[result, plots, config, data], overwrite=overwrite) as tmp:
-        write_phenotype(tmp, ph, images, plot_list, result=str(result.resolve()))
+        write_phenotype(tmp, ph, images, plot_list, title=f"seedmap phenotype: {result.name}",
+                        result=str(result.resolve()))
         dump_config(cfg, tmp / "config.yaml")
     s = ph.summary()
     typer.echo(f"{s['panicles']} panicles ({s['panicles_ok']} ok), height from the {s['height_source']}, "
-               f"~{s['seeds_est']:.0f} seeds (calibration {s['calibration']}): {out / 'panicles.csv'}")
+               f"~{s['seeds_est']:.0f} seeds (calibration {s['calibration']}): {out / 'panicles.csv'}, "
+               f"report {out / 'phenotype.html'}")
 
 
 @eval_app.command("phenotype")

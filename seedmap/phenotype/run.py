@@ -61,13 +61,21 @@ class Images:
 
 
 def dataset_images(dataset: Path, detector: str, detect_config=None, dataset_config=None) -> Images:  # noqa: ANN001
-    """:class:`Images` of a dataset seedmap reads, the seeds detected on demand by ``detector`` (once a frame)."""
+    """:class:`Images` of a dataset seedmap reads, the seeds detected on demand by ``detector`` (once a frame:
+    kept, 16 bytes a seed)."""
     from seedmap.detect import make_detector
 
     ds = dataset_config.open(dataset) if dataset_config is not None else _open(dataset)
     det = make_detector(detector, dataset=Path(dataset), config=detect_config)
-    return Images(ds.calib, np.arange(len(ds)), np.asarray(ds.timestamps, float),
-                  lambda f: det.detect_stereo(ds[f]).left.ellipses, lambda f: ds[f].left)
+    found = FrameSeeds()
+
+    def seeds_of(f: int) -> np.ndarray | None:
+        if found(f) is None:
+            frame = ds[f]
+            found.add(f, frame.timestamp, det.detect_stereo(frame).left.ellipses)
+        return found(f)
+
+    return Images(ds.calib, np.arange(len(ds)), np.asarray(ds.timestamps, float), seeds_of, lambda f: ds[f].left)
 
 
 def _open(dataset: Path):  # noqa: ANN202 - a seedmap dataset
@@ -121,10 +129,12 @@ def phenotype_result(result: Path, cfg: PhenotypeConfig, images: Images | None =
 
 
 def write_phenotype(folder: Path, ph: Phenotype, images: Images | None = None,
-                    plots: Sequence[tuple[str, float, float]] | None = None, **summary: object) -> None:
+                    plots: Sequence[tuple[str, float, float]] | None = None, title: str = "seedmap phenotype",
+                    **summary: object) -> None:
     """``panicles.csv``, ``panicles.json`` (summary), ``plots.csv`` with ``plots``, ``thumbs/panicle_NNN.png``
-    with the views, ``phenotype.html``."""
+    with the views, ``phenotype.html`` (:mod:`seedmap.phenotype.report`)."""
     from seedmap.io.atomic import atomic_write_text
+    from seedmap.phenotype.report import write_phenotype_report
 
     folder = Path(folder)
     atomic_write_text(folder / "panicles.csv", rows_csv(ph.rows, COLUMNS))
@@ -134,3 +144,4 @@ def write_phenotype(folder: Path, ph: Phenotype, images: Images | None = None,
     atomic_write_text(folder / SUMMARY, json.dumps(ph.summary(**summary), indent=2) + "\n")
     if ph.views is not None and images is not None:
         write_thumbnails(folder, [r["panicle_id"] for r in ph.rows], ph.views, images.left)
+    write_phenotype_report(folder, ph.rows, plot_rows, title=title)

@@ -247,7 +247,8 @@ def _write_phenotype(folder: Path, cfg: SlamConfig, calib, seeds_seen, load, dat
     idx, ts = seeds_seen.timestamps()
     images = Images(calib, idx, ts, seeds_seen, lambda f: load(f).left)
     ph = phenotype_result(folder, cfg.phenotype, images)
-    write_phenotype(folder, ph, images, dataset=str(Path(dataset).resolve()), detector=detector)
+    write_phenotype(folder, ph, images, title=f"seedmap slam: {Path(dataset).name}, panicles",
+                    dataset=str(Path(dataset).resolve()), detector=detector)
 
 
 def _live_writer(out: Path, overwrite: bool):  # noqa: ANN202 - seedmap.slam.follow.LiveWriter

@@ -52,7 +52,7 @@ def _flatten(obj: Any, prefix: str = "") -> list[tuple[str, Any]]:
     return [(prefix or "value", obj)]
 
 
-def _fmt(v: Any) -> tuple[str, bool]:
+def format_value(v: Any) -> tuple[str, bool]:
     """Display text of a metric value and whether it is numeric."""
     if isinstance(v, (bool, np.bool_)):
         return str(bool(v)), False
@@ -72,7 +72,7 @@ def _fmt(v: Any) -> tuple[str, bool]:
 def metrics_table_html(metrics: Any) -> str:
     rows = []
     for name, value in _flatten(metrics):
-        text, num = _fmt(value)
+        text, num = format_value(value)
         cls = ' class="num"' if num else ""
         rows.append(f"<tr><th>{html.escape(name)}</th><td{cls}>{html.escape(text)}</td></tr>")
     return '<table class="metrics">\n' + "\n".join(rows) + "\n</table>"
@@ -94,9 +94,33 @@ def png_data_uri(img_or_fig: Any) -> str:
     return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
 
 
-def _figure(caption: str, uri: str) -> str:
+def png_file_data_uri(path: str | Path) -> str | None:
+    """``data:image/png;base64,...`` of a PNG file as it is (no re-encoding); None when it is not a PNG file."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError:
+        return None
+    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+        return None
+    return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+
+
+def figure_html(caption: str, uri: str) -> str:
+    """An ``<figure>`` of an embedded image (a data URI) with its caption."""
     return (f'<figure><img alt="{html.escape(caption)}" src="{uri}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def written_line() -> str:
+    """The report's "written <UTC time>" line."""
+    return f'<p class="meta">written {_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}</p>'
+
+
+def html_page(title: str, parts: Sequence[str], css: str = "") -> str:
+    """A whole self-contained HTML document: the shared style (plus ``css``) and the body ``parts``."""
+    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{html.escape(title)}</title><style>{_CSS}{css}</style></head><body>\n"
+            + "\n".join(parts) + "\n</body></html>\n")
 
 
 def trajectory_figure(trajectories: Mapping[str, Trajectory]):
@@ -199,32 +223,28 @@ def write_html_report(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    parts = [f"<h1>{html.escape(title)}</h1>",
-             f'<p class="meta">written {_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}</p>']
+    parts = [f"<h1>{html.escape(title)}</h1>", written_line()]
     if notes:
         parts.append(f"<p>{html.escape(notes)}</p>")
     if metrics is not None:
         parts += ["<h2>Metrics</h2>", metrics_table_html(metrics)]
     if trajectories:
         fig = trajectory_figure(trajectories)
-        parts += ["<h2>Trajectory</h2>", _figure("camera positions (left camera)", png_data_uri(fig))]
+        parts += ["<h2>Trajectory</h2>", figure_html("camera positions (left camera)", png_data_uri(fig))]
         plt.close(fig)
     if matches_per_frame:
         fig = series_figure(matches_per_frame, "matches")
-        parts += ["<h2>Matches per frame</h2>", _figure("matches per frame", png_data_uri(fig))]
+        parts += ["<h2>Matches per frame</h2>", figure_html("matches per frame", png_data_uri(fig))]
         plt.close(fig)
     if timings:
         fig = series_figure({k: np.asarray(v, float) * 1e3 for k, v in timings.items()}, "time (ms)")
-        parts += ["<h2>Timing</h2>", _figure("time per frame", png_data_uri(fig))]
+        parts += ["<h2>Timing</h2>", figure_html("time per frame", png_data_uri(fig))]
         plt.close(fig)
     if points is not None and len(points):
         parts += ["<h2>3D view</h2>", points_3d_html(points, point_colors, trajectories)]
     if images:
         parts.append("<h2>Images</h2>")
-        parts += [_figure(caption, png_data_uri(img)) for caption, img in images.items()]
-    doc = ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-           f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>\n"
-           + "\n".join(parts) + "\n</body></html>\n")
+        parts += [figure_html(caption, png_data_uri(img)) for caption, img in images.items()]
     path = Path(path)
-    atomic_write_text(path, doc)
+    atomic_write_text(path, html_page(title, parts))
     return path
