@@ -24,8 +24,16 @@ def test_run_slam_on_a_simulated_range(tiny_range, tmp_path):
     assert m.ate_rmse_m < 0.01 * m.range_length_m
     out = tmp_path / "res"
     for name in ("config.yaml", "metrics.json", "trajectory.tum", "trajectory.kitti", "landmarks.csv",
-                 "landmarks.ply", "topview.png", "matches_per_frame.csv", "report.md"):
+                 "landmarks.ply", "topview.png", "matches_per_frame.csv", "report.md", "panicles.csv",
+                 "panicles.json", "phenotype.html"):
         assert (out / name).is_file(), name
+    # the phenotype table: each panicle counted in its best view, with a thumbnail of it
+    import csv
+
+    with (out / "panicles.csv").open() as f:
+        panicles = list(csv.DictReader(f))
+    assert panicles and all(int(r["seeds_in_view"]) > 0 for r in panicles)
+    assert all((out / "thumbs" / f"panicle_{int(r['panicle_id']):03d}.png").is_file() for r in panicles)
     assert json.loads((out / "metrics.json").read_text())["frames_tracked"] == m.frames_tracked
     assert len(res.matches_per_frame["stereo"]) == m.frames
     # eval slam recomputes the same numbers from the files
