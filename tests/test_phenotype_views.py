@@ -89,9 +89,9 @@ def test_write_phenotype_writes_the_table_summary_and_thumbnails(tmp_path):
 def test_outline_margin_and_frame_lookup():
     square = outline_of(np.array([[0, 0], [100, 0], [100, 100], [0, 100], [50, 50]], float))
     assert len(square) == 4
-    e = np.array([[50, 50, 8, 8], [103, 50, 8, 8], [110, 50, 8, 8], [-2, -2, 8, 8]], np.float32)
-    # inside, or within one median seed radius (4 px) of the outline
-    assert seeds_inside(e, square).tolist() == [[50, 50], [103, 50], [-2, -2]]
+    e = np.array([[50, 50, 8, 8], [107, 50, 8, 8], [110, 50, 8, 8], [-5, -5, 8, 8]], np.float32)
+    # inside, or within two median seed radii (8 px) of the outline
+    assert seeds_inside(e, square).tolist() == [[50, 50], [107, 50], [-5, -5]]
     from seedmap.records import Trajectory
 
     traj = Trajectory(np.array([0.19, 0.41, 1.0]), np.tile(np.eye(4), (3, 1, 1)))
