@@ -17,14 +17,13 @@ import numpy as np
 
 from seedmap.io.atomic import atomic_write_text
 from seedmap.phenotype.table import COLUMNS, PLOT_COLUMNS
+from seedmap.phenotype.views import THUMB_PATTERN
 from seedmap.viz.html_report import (figure_html, format_value, html_page, metrics_table_html, png_data_uri,
                                      png_file_data_uri, written_line)
 from seedmap.viz.plotting import figure_text
 
 #: file name of the report in the phenotype output folder
 REPORT_NAME = "phenotype.html"
-#: thumbnails the report embeds: ``thumbs/panicle_NNN.png``, NNN the panicle id zero-padded to 3 digits
-THUMB_PATTERN = "thumbs/panicle_{:03d}.png"
 #: histogram panels: (column, axis label, scale applied to the value)
 HISTOGRAMS = (("length_m", "length (cm)", 100.0), ("width_m", "width (cm)", 100.0),
               ("height_m", "height above ground (m)", 1.0), ("tilt_deg", "tilt from vertical (°)", 1.0),

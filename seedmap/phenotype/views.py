@@ -27,6 +27,8 @@ OUTLINE_MARGIN_RADII = 2.0
 #: thumbnails: crop margin around the outline (px) and the longest side of the written image (px)
 THUMB_MARGIN_PX = 24
 THUMB_MAX_PX = 320
+#: thumbnail files in the output folder: NNN the panicle id zero-padded to 3 digits
+THUMB_PATTERN = "thumbs/panicle_{:03d}.png"
 
 
 @dataclass
@@ -168,13 +170,12 @@ def thumbnail(image: np.ndarray, view: PanicleView) -> np.ndarray:
 
 def write_thumbnails(folder: Path, ids: Sequence[int], views: Sequence[PanicleView],
                      load_left: Callable[[int], np.ndarray]) -> list[Path]:
-    """``folder/thumbs/panicle_NNN.png`` for every panicle (``ids``: the table's panicle ids)."""
+    """``folder/`` :data:`THUMB_PATTERN` for every panicle (``ids``: the table's panicle ids)."""
     from seedmap.io.atomic import atomic_write_bytes
 
     import cv2
 
-    d = Path(folder) / "thumbs"
-    d.mkdir(parents=True, exist_ok=True)
+    (Path(folder) / THUMB_PATTERN.format(0)).parent.mkdir(parents=True, exist_ok=True)
     images: dict[int, np.ndarray] = {}
     paths = []
     for pid, v in zip(ids, views):
@@ -182,7 +183,7 @@ def write_thumbnails(folder: Path, ids: Sequence[int], views: Sequence[PanicleVi
             images[v.frame] = load_left(v.frame)
         ok, png = cv2.imencode(".png", cv2.cvtColor(thumbnail(images[v.frame], v), cv2.COLOR_RGB2BGR))
         if ok:
-            p = d / f"panicle_{int(pid):03d}.png"
+            p = Path(folder) / THUMB_PATTERN.format(int(pid))
             atomic_write_bytes(p, png.tobytes())
             paths.append(p)
     return paths
