@@ -185,3 +185,15 @@ def test_the_project_speaks_only_of_itself():
 def test_readme_is_for_users():
     n = len((ROOT / "README.md").read_text().splitlines())
     assert n <= README_MAX_LINES, f"README.md has {n} lines (at most {README_MAX_LINES})"
+
+
+def test_the_version_is_the_newest_changelog_release(monkeypatch, capsys):
+    import re
+
+    import seedmap
+    from tests.helpers.cli import run_cli
+
+    top = re.search(r"^## (\d+\.\d+\.\d+)", (ROOT / "CHANGELOG.md").read_text(), re.M)
+    assert top is not None and seedmap.__version__ == top.group(1)
+    assert run_cli(["--version"], monkeypatch) == 0
+    assert capsys.readouterr().out.strip() == f"seedmap {seedmap.__version__}"
