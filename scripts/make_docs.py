@@ -174,30 +174,45 @@ def _sweep_cell(p: dict, fail_below: float) -> str:
     return f"**{text}**" if p["gt"] < fail_below else text
 
 
-def _first_to_fail(per: dict) -> str:
-    """The methods that fail at the smallest strength of one condition (``level`` of that strength), or none."""
+def _first_set(per: dict) -> tuple[list[str], str | None]:
+    """The methods that fail at the smallest strength of one condition, and the ``level`` of that strength."""
     at = {}
     for m, v in per.items():
-        lev = v["fails_first"]
-        s = next((p["strength"] for p in v["points"] if p["level"] == lev), None)
+        s = next((p["strength"] for p in v["points"] if p["level"] == v["fails_first"]), None)
         if s is not None:
-            at[m] = (s, lev)
+            at[m] = (s, v["fails_first"])
     if not at:
-        return "none"
+        return [], None
     s0 = min(s for s, _ in at.values())
-    lev = next(lev for s, lev in at.values() if s == s0)
-    return ", ".join(method_label(m) for m, (s, _) in at.items() if s == s0) + f" ({lev})"
+    return [m for m, (s, _) in at.items() if s == s0], next(lev for s, lev in at.values() if s == s0)
+
+
+def _first_to_fail(per: dict) -> str:
+    """The methods that fail first under one condition, with the level (``none`` when every method holds)."""
+    ms, lev = _first_set(per)
+    return ", ".join(method_label(m) for m in ms) + f" ({lev})" if ms else "none"
+
+
+def _seeds_first(conds: dict, methods: Sequence[str]) -> str:
+    """Where seeds with a real (not ORACLE) detector are among the first to fail, said plainly."""
+    out = []
+    for m in (m for m in methods if m.startswith("seeds+") and not m.endswith("+gt")):
+        where = [f"{c} ({lev})" for c, per in conds.items() for ms, lev in [_first_set(per["methods"])] if m in ms]
+        out.append(f"{method_label(m)} is among the first to fail under: " + (", ".join(where) if where else
+                                                                             "no condition of this sweep") + ".")
+    return "\n" + " ".join(out) + "\n" if out else ""
 
 
 def _sweep_detectors(methods: Sequence[str]) -> str:
     """Which seed detectors the sweep ran, and why ``frcnn-pix2pix`` is not among them when it is not."""
     dets = [m.split("+", 1)[1] for m in methods if m.startswith("seeds+")]
-    text = "Seeds ran with the detector" + ("s " if len(dets) > 1 else " ") + ", ".join(
-        f"`{d}`" + (" (ORACLE: the ground-truth seed positions, the best any detector can give)" if d == "gt" else "")
-        for d in dets) + "."
+    named = [f"`{d}`" + (" (ORACLE: the ground-truth seed positions, the best any detector can give)"
+                         if d == "gt" else "") for d in dets]
+    text = "Seeds ran with the detector" + ("s " + ", ".join(named[:-1]) + " and " + named[-1] if len(named) > 1
+                                            else " " + "".join(named)) + "."
     if "frcnn-pix2pix" not in dets:
         text += (" The learned detector `frcnn-pix2pix` is not swept: seedmap ships no trained weights for it "
-                 "(`seedmap/detect/weights/` holds none), so no benchmark runs it.")
+                 "(no `detector.safetensors` in `seedmap/detect/weights/`), so no benchmark runs it.")
     return text + " Plots: drawn by the sweep from the same summary, copied by `scripts/sweep_json.py`.\n"
 
 
@@ -220,7 +235,8 @@ def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
              "## Where each method fails first\n",
              table(["method"] + conds, [[method_label(m)] + [summ["conditions"][c]["methods"].get(m, {}).get(
                  "fails_first", "–") for c in conds] for m in methods]
-                   + [["**first to fail**"] + [_first_to_fail(summ["conditions"][c]["methods"]) for c in conds]])]
+                   + [["**first to fail**"] + [_first_to_fail(summ["conditions"][c]["methods"]) for c in conds]]),
+             _seeds_first(summ["conditions"], methods)]
     for c in conds:
         per = summ["conditions"][c]["methods"]
         levels = [p["level"] for p in next(iter(per.values()))["points"]]

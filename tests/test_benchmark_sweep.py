@@ -136,7 +136,8 @@ def _make_docs():
 
 
 def test_results_page_names_the_first_method_to_fail_per_condition():
-    first = _make_docs()._first_to_fail
+    docs = _make_docs()
+    first = docs._first_to_fail
     rows = _synthetic() + [_row("wind", f"{s:g}", s, k, "seeds+gt", g) for s, g in
                            {0.0: 1.0, 0.5: 0.2, 1.0: 0.1, 2.0: 0.0}.items() for k in (1, 2)]
     per = sweep_summary(rows)["conditions"]["wind"]["methods"]
@@ -144,6 +145,11 @@ def test_results_page_names_the_first_method_to_fail_per_condition():
     del per["seeds+gt"]
     assert first(per) == "seeds+fast, orb (1)"  # ties listed together; sift (n/a) and orbslam3 (never) are not
     assert first({"orbslam3": per["orbslam3"], "sift": per["sift"]}) == "none"
+    said = docs._seeds_first({"wind": {"methods": per}}, list(per))
+    assert "seeds+fast is among the first to fail under: wind (1)." in said
+    holds = {m: per[m] for m in ("seeds+fast", "orbslam3")}
+    holds["orbslam3"] = {**per["orb"], "fails_first": "0.5"}
+    assert "under: no condition" in docs._seeds_first({"wind": {"methods": holds}}, list(holds))
 
 
 def test_sweep_json_script_stamps_the_command_and_copies_the_plots(tmp_path):
