@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from docs_format import fixed, load, mean_std, method_label, num, pct, source, table
 
 PUBLISHED_AS = {"orbslam3": "ORB-SLAM2 (beside orbslam3)"}
@@ -77,6 +79,48 @@ def _sweep_cell(p: dict, fail_below: float) -> str:
     return f"**{text}**" if p["gt"] < fail_below else text
 
 
+def _first_set(per: dict) -> tuple[list[str], str | None]:
+    """The methods that fail at the smallest strength of one condition, and the ``level`` of that strength."""
+    at = {}
+    for m, v in per.items():
+        s = next((p["strength"] for p in v["points"] if p["level"] == v["fails_first"]), None)
+        if s is not None:
+            at[m] = (s, v["fails_first"])
+    if not at:
+        return [], None
+    s0 = min(s for s, _ in at.values())
+    return [m for m, (s, _) in at.items() if s == s0], next(lev for s, lev in at.values() if s == s0)
+
+
+def _first_to_fail(per: dict) -> str:
+    """The methods that fail first under one condition, with the level (``none`` when every method holds)."""
+    ms, lev = _first_set(per)
+    return ", ".join(method_label(m) for m in ms) + f" ({lev})" if ms else "none"
+
+
+def _seeds_first(conds: dict, methods: Sequence[str]) -> str:
+    """Where seeds with a real (not ORACLE) detector are among the first to fail, said plainly."""
+    out = []
+    for m in (m for m in methods if m.startswith("seeds+") and not m.endswith("+gt")):
+        where = [f"{c} ({lev})" for c, per in conds.items() for ms, lev in [_first_set(per["methods"])] if m in ms]
+        out.append(f"{method_label(m)} is among the first to fail under: " + (", ".join(where) if where else
+                                                                             "no condition of this sweep") + ".")
+    return "\n" + " ".join(out) + "\n" if out else ""
+
+
+def _sweep_detectors(methods: Sequence[str]) -> str:
+    """Which seed detectors the sweep ran, and why ``frcnn-pix2pix`` is not among them when it is not."""
+    dets = [m.split("+", 1)[1] for m in methods if m.startswith("seeds+")]
+    named = [f"`{d}`" + (" (ORACLE: the ground-truth seed positions, the best any detector can give)"
+                         if d == "gt" else "") for d in dets]
+    text = "Seeds ran with the detector" + ("s " + ", ".join(named[:-1]) + " and " + named[-1] if len(named) > 1
+                                            else " " + "".join(named)) + "."
+    if "frcnn-pix2pix" not in dets:
+        text += (" The learned detector `frcnn-pix2pix` is not swept: seedmap ships no trained weights for it "
+                 "(no `detector.safetensors` in `seedmap/detect/weights/`), so no benchmark runs it.")
+    return text + " Plots: drawn by the sweep from the same summary, copied by `scripts/sweep_json.py`.\n"
+
+
 def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
     d = load("sweep.json")
     if d is None:
@@ -92,9 +136,12 @@ def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
              "[docs/method/conditions.md](../method/conditions.md)), and the calm < breeze < windy < rough ladder. "
              f"A method fails at a strength when its mean GT-validated fraction of the range mapped drops below "
              f"{100 * summ['fail_below']:.0f} %.\n",
+             _sweep_detectors(methods),
              "## Where each method fails first\n",
              table(["method"] + conds, [[method_label(m)] + [summ["conditions"][c]["methods"].get(m, {}).get(
-                 "fails_first", "–") for c in conds] for m in methods])]
+                 "fails_first", "–") for c in conds] for m in methods]
+                   + [["**first to fail**"] + [_first_to_fail(summ["conditions"][c]["methods"]) for c in conds]]),
+             _seeds_first(summ["conditions"], methods)]
     for c in conds:
         per = summ["conditions"][c]["methods"]
         levels = [p["level"] for p in next(iter(per.values()))["points"]]
@@ -102,7 +149,8 @@ def page_sweep(cmds: dict[str, str]) -> tuple[str, str] | None:
         rows += [[f"{method_label(m)}: ATE (mm)"] + [num(None if p.get("ate_m") is None else 1000 * p["ate_m"])
                                                    for p in v["points"]]
                  for m, v in per.items() if any(p.get("ate_m") is not None for p in v["points"])]
-        parts += [f"\n## {c}\n", "GT-validated fraction of the range mapped: mean (min–max) over the world "
+        parts += [f"\n## {c}\n", f"![{c}: GT-validated fraction mapped vs strength per method](sweep/{c}.png)\n",
+                  "GT-validated fraction of the range mapped: mean (min–max) over the world "
                   "seeds, in bold where the method fails; ATE over the tracked part, mean over the seeds that ran.\n",
                   table([f"{c} strength" if c != "ladder" else "rung"] + levels, rows)]
     notes = sorted({f"{r['method']}: {r['note']}" for r in d["records"] if r.get("status") not in ("ok", None)

@@ -114,6 +114,63 @@ def test_report_files_from_records(tmp_path):
     assert "| sift | n/a | n/a | n/a | n/a |" in md and "[2 error]" not in md and "error" in md
 
 
+def test_default_methods_are_seeds_with_each_shipped_detector_then_every_baseline():
+    from seedmap.eval.benchmark.spec import BenchmarkConfig, default_methods
+
+    chosen = SweepConfig().benchmark.methods
+    shipped = [m.name for m in default_methods(BenchmarkConfig(), with_gt=True) if m.matcher == "seeds"]
+    assert shipped and set(shipped) <= set(chosen)  # gt (the ORACLE) and fast; frcnn-pix2pix once weights ship
+    assert {"orbslam3", "sift", "orb", "akaze"} <= set(chosen)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _docs_pages():
+    """scripts/docs_pages.py, the results pages' functions (loaded as make_docs loads it)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("make_docs", ROOT / "scripts" / "make_docs.py")
+    spec.loader.exec_module(importlib.util.module_from_spec(spec))
+    return sys.modules["docs_pages"]
+
+
+def test_results_page_names_the_first_method_to_fail_per_condition():
+    docs = _docs_pages()
+    first = docs._first_to_fail
+    rows = _synthetic() + [_row("wind", f"{s:g}", s, k, "seeds+gt", g) for s, g in
+                           {0.0: 1.0, 0.5: 0.2, 1.0: 0.1, 2.0: 0.0}.items() for k in (1, 2)]
+    per = sweep_summary(rows)["conditions"]["wind"]["methods"]
+    assert first(per) == "seeds+gt (ORACLE) (0.5)"  # before seeds+fast and orb (both at 1)
+    del per["seeds+gt"]
+    assert first(per) == "seeds+fast, orb (1)"  # ties listed together; sift (n/a) and orbslam3 (never) are not
+    assert first({"orbslam3": per["orbslam3"], "sift": per["sift"]}) == "none"
+    said = docs._seeds_first({"wind": {"methods": per}}, list(per))
+    assert "seeds+fast is among the first to fail under: wind (1)." in said
+    holds = {m: per[m] for m in ("seeds+fast", "orbslam3")}
+    holds["orbslam3"] = {**per["orb"], "fails_first": "0.5"}
+    assert "under: no condition" in docs._seeds_first({"wind": {"methods": holds}}, list(holds))
+
+
+def test_sweep_json_script_stamps_the_command_and_copies_the_plots(tmp_path):
+    res = tmp_path / "sweep"
+    write_sweep_reports(_synthetic(), res, {"conditions": ["wind"]})
+    plots = tmp_path / "docs"
+    plots.mkdir()
+    (plots / "stale.png").write_bytes(b"old")
+    script = [sys.executable, str(ROOT / "scripts" / "sweep_json.py"), str(res), "--out", str(tmp_path / "s.json"),
+              "--plots", str(plots)]
+    subprocess.run([*script, "--command", "seedmap benchmark sweep --out sweep"], check=True, capture_output=True)
+    doc = json.loads((tmp_path / "s.json").read_text())
+    assert doc["command"] == "seedmap benchmark sweep --out sweep" and doc["commit"] and doc["records"]
+    assert sorted(p.name for p in plots.iterdir()) == ["wind.png"]
+    assert (plots / "wind.png").read_bytes() == (res / "plots" / "wind.png").read_bytes()
+    (res / "plots" / "wind.png").unlink()
+    (tmp_path / "s.json").unlink()
+    r = subprocess.run([*script, "--command", "x"], capture_output=True, text=True)
+    assert r.returncode != 0 and "0 plots for 1 conditions" in r.stderr and not (tmp_path / "s.json").exists()
+
+
 @pytest.mark.parametrize("args, words", [
     (["--conditions", "wind,fog"], "unknown condition 'fog'"),
     (["--strengths", "0,-1"], "outside 0..3"),

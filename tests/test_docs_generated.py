@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -27,3 +29,16 @@ def test_readme_results_table_matches_the_benchmark_json() -> None:
     spec.loader.exec_module(make_docs)
     readme = (ROOT / "README.md").read_text()
     assert make_docs.readme_with_glance(readme) == readme, "run `make docs`: README's results table is stale"
+
+
+def test_sweep_page_shows_a_committed_plot_per_condition() -> None:
+    import json
+
+    doc = ROOT / "benchmarks" / "results" / "sweep.json"
+    if not doc.is_file():
+        pytest.skip("no sweep.json: the sweep page is not generated")
+    conds = list(json.loads(doc.read_text())["summary"]["conditions"])
+    page = (ROOT / "docs" / "results" / "sweep.md").read_text()
+    pngs = sorted(p.name for p in (ROOT / "docs" / "results" / "sweep").glob("*.png"))
+    assert pngs == sorted(f"{c}.png" for c in conds), "run scripts/sweep_json.py: the sweep's plots differ"
+    assert all(f"](sweep/{c}.png)" in page for c in conds)

@@ -127,7 +127,7 @@ def benchmark_sweep(
     seeds: Optional[str] = typer.Option(None, "--seeds", help="World seeds, each point on every one (default 40,41)."),
     length: Optional[float] = typer.Option(None, "--length", help="Range length in metres (default 0.5)."),
     methods: Optional[str] = typer.Option(None, "--methods",
-                                          help="Comma list (default seeds+fast,orbslam3,sift,orb,akaze)."),
+                                          help="Comma list (default seeds+fast,seeds+gt,orbslam3,sift,orb,akaze)."),
     workers: Optional[int] = typer.Option(None, "--workers", "-j", help="Parallel processes (default 2)."),
     data_dir: Optional[Path] = typer.Option(None, "--data-dir", help="Cache of simulated ranges."),
     config: Optional[Path] = ConfigOpt,

@@ -21,8 +21,9 @@ from seedmap.eval.benchmark.spec import CSV_FIELDS, BenchmarkConfig, RangeSpec, 
 from seedmap.eval.benchmark.sweep_report import write_sweep_reports
 from seedmap.sim.conditions import LADDER, STRENGTHS
 
-#: methods a sweep runs by default: seeds with the default detector, ORB-SLAM3 and the descriptor baselines
-SWEEP_METHODS = ("seeds+fast", "orbslam3", "sift", "orb", "akaze")
+#: methods a sweep runs by default: seeds with each shipped detector (``fast``; ``gt``, the ORACLE), ORB-SLAM3 and
+#: the descriptor baselines
+SWEEP_METHODS = ("seeds+fast", "seeds+gt", "orbslam3", "sift", "orb", "akaze")
 #: the ``condition`` of the ladder's points (its strength is the rung's index: calm 0 .. rough 3)
 LADDER_NAME = "ladder"
 #: columns of the sweep's ``results.csv``: the point, then the benchmark record's columns
