@@ -1,0 +1,284 @@
+"""Compiled (numba) inner loops of the association, each giving exactly what the numpy code it replaces gave.
+
+* :func:`box_candidates` - the candidate runs of :func:`seedmap.associate.field.box_pairs` and their exact box test,
+  pair by pair in the numpy version's order (no repeat/offset arrays of every candidate);
+* :func:`band_sums` - the left/right (or top/bottom) neighbour sums of :func:`seedmap.associate.cost.neighbour_sums`,
+  every pair's distance added in the order ``np.bincount`` adds it (same sums bit for bit);
+* :func:`vote_histogram` - the coarse field's displacement histogram (``np.bincount`` of the votes' bins);
+* :func:`box3_filter` - ``scipy.ndimage.uniform_filter(x, 3, mode="constant")`` of a 4-D float32 array, line by
+  line as scipy does (the lines of one axis advanced together);
+* :func:`knn_grid` - the ``k`` nearest points of every query point on a uniform grid, with a flag where the
+  ``k``-th and ``(k+1)``-th distances tie (the caller asks a KD-tree there, so ties resolve as before).
+
+Kernels compile on first use and are cached on disk (``cache=True``). The method: docs/method/association.md.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+#: relative gap below which the k-th and (k+1)-th squared distances count as a tie (left to the KD-tree)
+TIE_REL = 1e-9
+#: rings of grid cells searched around a k-NN query before it is left to the KD-tree (a query far from all points)
+MAX_RING = 4
+
+
+@njit(cache=True, nogil=True)
+def _search_left(a: np.ndarray, v: float) -> int:
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def _search_right(a: np.ndarray, v: float) -> int:
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] <= v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, nogil=True)
+def box_candidates(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, m: float, sa: np.ndarray,
+                   sb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``(i, j)`` with ``|sb[j] - sa[i]| <= 1`` on both axes: for each query ``i`` (in order) and row offset
+    -1, 0, 1 the run of sorted keys ``ks`` (``order``: their points) within ``qa[i] + dr * w -+ m``, tested exactly."""
+    n = len(qa)
+    lo = np.empty(3 * n, np.int64)
+    hi = np.empty(3 * n, np.int64)
+    total = 0
+    for i in range(n):
+        for c in range(3):
+            base = qa[i] + (c - 1.0) * w
+            a = _search_left(ks, base - m)
+            b = _search_right(ks, base + m)
+            lo[3 * i + c] = a
+            hi[3 * i + c] = b
+            if b > a:
+                total += b - a
+    oi = np.empty(total, np.int64)
+    oj = np.empty(total, np.int64)
+    k = 0
+    for i in range(n):
+        ax, ay = sa[i, 0], sa[i, 1]
+        for c in range(3):
+            for p in range(lo[3 * i + c], hi[3 * i + c]):
+                j = order[p]
+                if abs(sb[j, 0] - ax) <= 1.0 and abs(sb[j, 1] - ay) <= 1.0:
+                    oi[k] = i
+                    oj[k] = j
+                    k += 1
+    return oi[:k], oj[:k]
+
+
+@njit(cache=True, nogil=True)
+def band_sums(sb: np.ndarray, sa: np.ndarray, eps: float, delta: float, ok: np.ndarray,
+              use_ok: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Sums of distances to the points before / after each point along ``sa`` within the band ``|Δsb| < eps``
+    and ``0 < |Δsa| < delta`` (``sb`` sorted ascending; ``ok`` marks the points that count as neighbours when
+    ``use_ok``). Pairs are visited ``i`` ascending, then ``j`` ascending, as the numpy version lists them."""
+    n = len(sb)
+    before = np.zeros(n)
+    after = np.zeros(n)
+    for i in range(n):
+        lim = sb[i] + eps
+        j = i + 1
+        while j < n and sb[j] < lim:
+            d = sa[j] - sa[i]
+            if d != 0 and abs(d) < delta:
+                dist = math.hypot(d, sb[j] - sb[i])
+                if d > 0:
+                    first, second = i, j
+                else:
+                    first, second = j, i
+                if not use_ok or ok[first]:
+                    before[second] += dist
+                if not use_ok or ok[second]:
+                    after[first] += dist
+            j += 1
+    return before, after
+
+
+@njit(cache=True, nogil=True)
+def vote_histogram(i: np.ndarray, j: np.ndarray, ka: np.ndarray, kb: np.ndarray, cell_of: np.ndarray,
+                   lo: np.ndarray, binw: np.ndarray, nb: np.ndarray, ncell: int) -> np.ndarray:
+    """float32 ``(ncell * nb[0] * nb[1])`` vote counts: pair ``(i, j)`` votes in cell ``cell_of[i]`` at the bin of
+    its displacement ``kb[j] - ka[i]`` (``int((d - lo) / binw)`` clipped to the bins, as the numpy version)."""
+    n0, n1 = nb[0], nb[1]
+    hist = np.zeros(ncell * n0 * n1, np.float32)
+    for p in range(len(i)):
+        a, b = i[p], j[p]
+        u = int(((kb[b, 0] - ka[a, 0]) - lo[0]) / binw[0])
+        v = int(((kb[b, 1] - ka[a, 1]) - lo[1]) / binw[1])
+        u = min(max(u, 0), n0 - 1)
+        v = min(max(v, 0), n1 - 1)
+        hist[(cell_of[a] * n0 + u) * n1 + v] += 1.0
+    return hist
+
+
+@njit(cache=True, nogil=True)
+def box3_filter(x: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.uniform_filter(x, size=3, mode="constant")`` of a C-contiguous 4-D float32 array, bit for
+    bit: per axis, per line, the window's sum in double (a running sum: exact for these float32 values) divided by
+    3 and stored as float32 before the next axis. The lines of one axis advance together (contiguous reads)."""
+    out = x.copy()
+    shp = out.shape
+    flat = out.reshape(-1)
+    size = flat.size
+    for axis in range(4):
+        length = shp[axis]
+        post = 1
+        for a in range(axis + 1, 4):
+            post *= shp[a]
+        pre = size // (length * post) if size else 0
+        tmp = np.empty(post)
+        m2 = np.empty(post)  # input at t - 2
+        m1 = np.empty(post)  # input at t - 1
+        for p in range(pre):
+            b = p * length * post
+            for q in range(post):
+                x0 = np.float64(flat[b + q])
+                x1 = np.float64(flat[b + post + q]) if length > 1 else 0.0
+                tmp[q] = (0.0 + x0) + x1
+                m2[q] = 0.0
+                m1[q] = x0
+                flat[b + q] = np.float32(tmp[q] / 3.0)
+            for t in range(1, length):
+                bt = b + t * post
+                for q in range(post):
+                    xn = np.float64(flat[bt + post + q]) if t + 1 < length else 0.0
+                    tmp[q] += xn - m2[q]
+                    m2[q] = m1[q]
+                    m1[q] = flat[bt + q]
+                    flat[bt + q] = np.float32(tmp[q] / 3.0)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _insert(bd: np.ndarray, bi: np.ndarray, cnt: int, cap: int, d: float, j: int) -> int:
+    """Insert ``(d, j)`` into the ascending best list ``bd``/``bi`` of ``cnt`` entries (at most ``cap``)."""
+    if cnt == cap and d >= bd[cap - 1]:
+        return cnt
+    p = cnt if cnt < cap else cap - 1
+    while p > 0 and bd[p - 1] > d:
+        if p < cap:
+            bd[p] = bd[p - 1]
+            bi[p] = bi[p - 1]
+        p -= 1
+    bd[p] = d
+    bi[p] = j
+    return cnt + 1 if cnt < cap else cnt
+
+
+@njit(cache=True, nogil=True)
+def _grid(pts: np.ndarray, x0: float, y0: float, x1: float, y1: float, cell: float):
+    """Square cells of side ~``cell`` over the box ``[x0, x1] x [y0, y1]``: the cell side used, the grid size
+    and the points of each cell (``members[counts[c]:counts[c + 1]]``)."""
+    n = len(pts)
+    gx = max(1, min(int((x1 - x0) / cell) + 1, 4096))
+    gy = max(1, min(int((y1 - y0) / cell) + 1, 4096))
+    while gx * gy > 16 * n + 16:  # bounded memory for tiny cells
+        gx = max(1, gx // 2)
+        gy = max(1, gy // 2)
+    cell = max((x1 - x0) / gx, (y1 - y0) / gy, 1e-9) * (1.0 + 1e-12)
+    cid = np.empty(n, np.int64)
+    counts = np.zeros(gx * gy + 1, np.int64)
+    for p in range(n):
+        cx = min(int((pts[p, 0] - x0) / cell), gx - 1)
+        cy = min(int((pts[p, 1] - y0) / cell), gy - 1)
+        cid[p] = cy * gx + cx
+        counts[cid[p] + 1] += 1
+    for c in range(gx * gy):
+        counts[c + 1] += counts[c]
+    fill = counts[:-1].copy()
+    members = np.empty(n, np.int64)
+    for p in range(n):
+        members[fill[cid[p]]] = p
+        fill[cid[p]] += 1
+    return cell, gx, gy, counts, members
+
+
+@njit(cache=True, nogil=True)
+def knn_grid(pts: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices ``(Q, k)`` of the ``k`` nearest ``pts`` (N, 2; Euclidean, ``k <= N``) of every query ``q`` (Q, 2),
+    nearest first, and a flag per query: True where the set is not well defined (the ``k``-th and ``(k+1)``-th
+    squared distances within ``TIE_REL``) or the query lies more than ``MAX_RING`` rings of cells from its
+    neighbours, for the caller to decide there. Points sit in square grid cells holding ~``max(k / 2, 4)`` each
+    where they are (sized on their occupied cells: seeds cluster in panicles); rings of cells are searched outward
+    until no point outside the searched block can beat the (k+1)-th best."""
+    n = len(pts)
+    nq = len(q)
+    nn = np.empty((nq, k), np.int64)
+    far = np.zeros(nq, np.bool_)
+    nn[:] = -1
+    x0, y0 = pts[0, 0], pts[0, 1]
+    x1, y1 = x0, y0
+    for p in range(n):
+        x0 = min(x0, pts[p, 0])
+        x1 = max(x1, pts[p, 0])
+        y0 = min(y0, pts[p, 1])
+        y1 = max(y1, pts[p, 1])
+    target = max(k / 2.0, 4.0)
+    cell = max(math.sqrt(max((x1 - x0) * (y1 - y0), 1e-12) * target / n), 1e-9)
+    cell, gx, gy, counts, members = _grid(pts, x0, y0, x1, y1, cell)
+    used = 0
+    for c in range(gx * gy):
+        used += counts[c + 1] > counts[c]
+    mean = n / max(used, 1)
+    if mean > 1.5 * target:  # clustered points: smaller cells where they are
+        cell, gx, gy, counts, members = _grid(pts, x0, y0, x1, y1, cell * math.sqrt(target / mean))
+    cap = min(k + 1, n)
+    bd = np.empty(cap)
+    bi = np.empty(cap, np.int64)
+    for t in range(nq):
+        qx, qy = q[t, 0], q[t, 1]
+        cx = min(max(int(math.floor((qx - x0) / cell)), -1), gx)
+        cy = min(max(int(math.floor((qy - y0) / cell)), -1), gy)
+        cnt = 0
+        r = 0
+        while True:
+            for yy in range(cy - r, cy + r + 1):
+                if yy < 0 or yy >= gy:
+                    continue
+                step = 1 if (yy == cy - r or yy == cy + r) else 2 * r
+                xx = cx - r
+                while xx <= cx + r:
+                    if 0 <= xx < gx:
+                        c = yy * gx + xx
+                        for s in range(counts[c], counts[c + 1]):
+                            p = members[s]
+                            dx = pts[p, 0] - qx
+                            dy = pts[p, 1] - qy
+                            cnt = _insert(bd, bi, cnt, cap, dx * dx + dy * dy, p)
+                    xx += step
+            if cx - r <= 0 and cy - r <= 0 and cx + r >= gx - 1 and cy + r >= gy - 1:
+                break  # the whole grid searched
+            if r >= MAX_RING:  # a query far from every point: left to the caller (flagged)
+                far[t] = True
+                break
+            if cnt == cap:
+                # distance from the query to the nearest point outside the searched block of cells
+                gap = min(qx - (x0 + (cx - r) * cell), x0 + (cx + r + 1) * cell - qx,
+                          qy - (y0 + (cy - r) * cell), y0 + (cy + r + 1) * cell - qy)
+                if gap > 0 and bd[cap - 1] < gap * gap * (1.0 - 1e-9):  # margin for the rounding
+                    break
+            r += 1
+        if far[t]:
+            continue
+        for s in range(k):
+            nn[t, s] = bi[s]
+        if cap > k and bd[k] - bd[k - 1] <= TIE_REL * bd[k]:
+            far[t] = True
+    return nn, far
