@@ -23,7 +23,7 @@ from numba import njit
 #: relative gap below which the k-th and (k+1)-th squared distances count as a tie (left to the KD-tree)
 TIE_REL = 1e-9
 #: rings of grid cells searched around a k-NN query before it is left to the KD-tree (a query far from all points)
-MAX_RING = 4
+MAX_RING = 16
 
 
 @njit(cache=True, nogil=True)
@@ -154,7 +154,7 @@ def box3_filter(x: np.ndarray) -> np.ndarray:
                 tmp[q] = (0.0 + x0) + x1
                 m2[q] = 0.0
                 m1[q] = x0
-                flat[b + q] = np.float32(tmp[q] / 3.0)
+                flat[b + q] = np.float32(tmp[q] / 3.0) if tmp[q] != 0.0 else np.float32(0.0)
             for t in range(1, length):
                 bt = b + t * post
                 for q in range(post):
@@ -162,7 +162,8 @@ def box3_filter(x: np.ndarray) -> np.ndarray:
                     tmp[q] += xn - m2[q]
                     m2[q] = m1[q]
                     m1[q] = flat[bt + q]
-                    flat[bt + q] = np.float32(tmp[q] / 3.0)
+                    # most windows of the sparse histogram are empty: 0 / 3 needs no division
+                    flat[bt + q] = np.float32(tmp[q] / 3.0) if tmp[q] != 0.0 else np.float32(0.0)
     return out
 
 

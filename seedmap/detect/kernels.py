@@ -44,6 +44,13 @@ def gather_patches(img: np.ndarray, x: np.ndarray, y: np.ndarray, r: int, lut: n
     h, w, ch = img.shape
     for p in range(len(x)):
         k = 0
+        if r <= x[p] < w - r and r <= y[p] < h - r:  # the whole square inside: no bounds tests
+            for yy in range(y[p] - r, y[p] + r + 1):
+                for xx in range(x[p] - r, x[p] + r + 1):
+                    for c in range(ch):
+                        out[p, k] = lut[img[yy, xx, c]]
+                        k += 1
+            continue
         for dy in range(-r, r + 1):
             yy = y[p] + dy
             for dx in range(-r, r + 1):
