@@ -11,7 +11,8 @@ from scipy.spatial import cKDTree
 
 from seedmap.associate.cost import full_res_scale, neighbour_sums
 from seedmap.associate.field import box_pairs, loo_local_median, nearest_points
-from seedmap.associate.kernels import box3_filter, vote_histogram
+from seedmap.associate.assignment import mutual_best, ratio_test
+from seedmap.associate.kernels import box3_filter, sure_pairs, vote_histogram
 
 
 @pytest.fixture(scope="module")
@@ -116,6 +117,21 @@ def test_vote_histogram_and_box3_filter_equal_bincount_and_scipy(dets):
     rng = np.random.default_rng(1)
     x = (rng.integers(0, 5, (6, 1, 30, 9)) * (rng.random((6, 1, 30, 9)) > 0.5) / 7).astype(np.float32)
     assert np.array_equal(box3_filter(x), uniform_filter(x, size=3, mode="constant"))
+
+
+def test_sure_pairs_equal_mutual_best_then_ratio_test(dets):
+    kp, _ = dets
+    a, b = kp[0], kp[1]
+    rng = np.random.default_rng(4)
+    ia, ib = box_pairs(a + [-60.0, 0.0], b, np.array([40.0, 3.0]))
+    res = np.hypot(*((b[ib] - a[ia] - [-60.0, 0.0]) / [13.0, 1.0]).T)
+    res[rng.random(len(res)) < 0.05] = 0.5  # exact ties between competitors
+    n, m = len(a), len(b)
+    for ratio in (0.3, 0.7, 1.0):
+        want = ratio_test(mutual_best(ia, ib, res, n, m), ia, ib, res, n, m, ratio)
+        got = sure_pairs(ia, ib, res, n, m, ratio)
+        assert len(want) > 10
+        assert np.array_equal(got[0], want.idx_a) and np.array_equal(got[1], want.idx_b)
 
 
 def _kdtree_loo_median(pos, val, k):

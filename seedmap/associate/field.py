@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from seedmap.associate.assignment import assign_capped, mutual_best, ratio_test
+from seedmap.associate.assignment import assign_capped, ratio_test
 from seedmap.associate.config import SemanticConfig
 from seedmap.associate.cost import pair_cost
-from seedmap.associate.kernels import box3_filter, box_candidates, knn_grid, vote_histogram
+from seedmap.associate.kernels import box3_filter, box_candidates, knn_grid, sure_pairs, vote_histogram
 from seedmap.records import Matches
 
 #: side of the image cells of the coarse displacement histogram (full-res px)
@@ -237,8 +237,8 @@ def field_estimate(ka: np.ndarray, kb: np.ndarray, gate, lo: np.ndarray, hi: np.
         sig = coarse_sig ** (1 - t) * np.asarray(sigma) ** t if it else coarse_sig
         ia, ib, res = field_candidates(ka, kb, pred, sig, gate, cfg.field_gate_sigma)
         # the next field comes from unambiguous mutual-best pairs only (cheap, no assignment)
-        sure = mutual_best(ia, ib, res, n, m)
-        sure = ratio_test(sure, ia, ib, res, n, m, FIELD_SEED_RATIO)
+        a_sure, b_sure = sure_pairs(ia, ib, res, n, m, FIELD_SEED_RATIO)  # mutual_best + ratio_test
+        sure = Matches(a_sure, b_sure, np.zeros(len(a_sure)))
         pred = local_field(ka, sure, kb, FIELD_K, pred)
         if fixed_v is not None:
             pred[:, 1] = fixed_v

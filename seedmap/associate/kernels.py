@@ -4,6 +4,8 @@
   pair by pair in the numpy version's order (no repeat/offset arrays of every candidate);
 * :func:`band_sums` - the left/right (or top/bottom) neighbour sums of :func:`seedmap.associate.cost.neighbour_sums`,
   every pair's distance added in the order ``np.bincount`` adds it (same sums bit for bit);
+* :func:`sure_pairs` - the mutual-best, ratio-tested pairs the field is refined from (``mutual_best`` +
+  ``ratio_test`` of seedmap.associate.assignment without their sorts and ``np.minimum.at``);
 * :func:`vote_histogram` - the coarse field's displacement histogram (``np.bincount`` of the votes' bins);
 * :func:`box3_filter` - ``scipy.ndimage.uniform_filter(x, 3, mode="constant")`` of a 4-D float32 array, line by
   line as scipy does (the lines of one axis advanced together);
@@ -109,6 +111,61 @@ def band_sums(sb: np.ndarray, sa: np.ndarray, eps: float, delta: float, ok: np.n
                     after[first] += dist
             j += 1
     return before, after
+
+
+@njit(cache=True, nogil=True)
+def sure_pairs(ia: np.ndarray, ib: np.ndarray, c: np.ndarray, n: int, m: int,
+               ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`seedmap.associate.assignment.mutual_best` followed by its ``ratio_test`` on the same ``c``, in one pass
+    each: the candidates ``(ia, ib)`` that are the lowest-``c`` candidate of both their keypoints (the first such
+    candidate on ties), kept when ``c < ratio * c`` of every other candidate sharing one of their keypoints
+    (``ratio >= 1``: no test); ordered by ``ia``."""
+    best_a = np.full(n, -1, np.int64)
+    best_b = np.full(m, -1, np.int64)
+    for k in range(len(ia)):
+        a, b = ia[k], ib[k]
+        if best_a[a] < 0 or c[k] < c[best_a[a]]:
+            best_a[a] = k
+        if best_b[b] < 0 or c[k] < c[best_b[b]]:
+            best_b[b] = k
+    # mutual: a's best candidate is also its B keypoint's best (same a)
+    kept = np.full(n, -1, np.int64)
+    cnt = 0
+    for a in range(n):
+        k = best_a[a]
+        if k >= 0 and ia[best_b[ib[k]]] == a:
+            kept[a] = k
+            cnt += 1
+    if ratio < 1.0:
+        kept_b = np.full(m, -1, np.int64)
+        for a in range(n):
+            if kept[a] >= 0:
+                kept_b[ib[kept[a]]] = kept[a]
+        alt_a = np.full(n, np.inf)
+        alt_b = np.full(m, np.inf)
+        for k in range(len(ia)):
+            a, b = ia[k], ib[k]
+            if kept[a] >= 0 and ib[kept[a]] != b:
+                alt_a[a] = min(alt_a[a], c[k])
+            if kept_b[b] >= 0 and ia[kept_b[b]] != a:
+                alt_b[b] = min(alt_b[b], c[k])
+        cnt = 0
+        for a in range(n):
+            k = kept[a]
+            if k >= 0:
+                if c[k] < ratio * min(alt_a[a], alt_b[ib[k]]):
+                    cnt += 1
+                else:
+                    kept[a] = -1
+    oa = np.empty(cnt, np.int64)
+    ob = np.empty(cnt, np.int64)
+    t = 0
+    for a in range(n):
+        if kept[a] >= 0:
+            oa[t] = a
+            ob[t] = ib[kept[a]]
+            t += 1
+    return oa, ob
 
 
 @njit(cache=True, nogil=True)
