@@ -10,7 +10,8 @@ from scipy.ndimage import uniform_filter
 from scipy.spatial import cKDTree
 
 from seedmap.associate.cost import full_res_scale, neighbour_sums
-from seedmap.associate.field import box_pairs, loo_local_median, nearest_points
+from seedmap.associate.base import GateConfig
+from seedmap.associate.field import box_pairs, field_candidates, loo_local_median, nearest_points
 from seedmap.associate.assignment import mutual_best, ratio_test
 from seedmap.associate.kernels import box3_filter, sure_pairs, vote_histogram
 
@@ -94,6 +95,27 @@ def test_box_pairs_equal_the_numpy_version_pair_for_pair(dets):
             want = _numpy_box_pairs(a, b, np.array(half))
             assert len(want[0]) > 0
             assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+
+
+def test_field_candidates_equal_box_then_gate_then_residual(dets):
+    from seedmap.associate.methods import stereo_gate_fn
+
+    kp, width = dets
+    kl, kr = kp[0], kp[1]
+    gate = stereo_gate_fn(kl, kr, GateConfig().scaled(width), width)
+    rng = np.random.default_rng(5)
+    pred = np.c_[rng.uniform(-90.0, -30.0, len(kl)), np.zeros(len(kl))]
+    for sig in (np.array([2.9, 2.9]), np.array([1.6, 0.5])):
+        ia, ib = box_pairs(kl + pred, kr, 3.5 * sig)
+        ok = gate(ia, ib)
+        ia, ib = ia[ok], ib[ok]
+        r = (kr[ib] - kl[ia] - pred[ia]) / sig
+        res = np.hypot(r[:, 0], r[:, 1])
+        ok = res <= 3.5
+        got = field_candidates(kl, kr, pred, sig, gate, 3.5)
+        assert ok.sum() > 100
+        for g, w in zip(got, (ia[ok], ib[ok], res[ok]), strict=True):
+            assert np.array_equal(g, w)
 
 
 def test_vote_histogram_and_box3_filter_equal_bincount_and_scipy(dets):

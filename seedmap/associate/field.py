@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from seedmap.associate.assignment import assign_capped, ratio_test
 from seedmap.associate.config import SemanticConfig
 from seedmap.associate.cost import pair_cost
-from seedmap.associate.kernels import box3_filter, box_candidates, knn_grid, sure_pairs, vote_histogram
+from seedmap.associate.kernels import box3_filter, box_candidates, box_residuals, knn_grid, sure_pairs, vote_histogram
 from seedmap.records import Matches
 
 #: side of the image cells of the coarse displacement histogram (full-res px)
@@ -38,17 +38,12 @@ FIELD_ITERS = 4
 FIELD_SEED_RATIO = 0.3
 
 
-def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(i, j)`` with ``|pb[j] - pa[i]| <= half`` on both axes (no N x M, no KD-tree).
-
-    ``half`` (2,) is the half-size of the search box in the same unit as the points. The pairs come
-    grouped by ``i`` in increasing order (within a group by the position of ``pb[j]``).
-    With both axes divided by ``half`` the box is the unit max-norm ball, so the points of B sorted by (unit row, u)
-    give, for each point of A and each of the two or three unit rows its box reaches, one contiguous run of
-    candidates (binary search); the exact test ``|pb[j] / half - pa[i] / half| <= 1`` (a KD-tree's test, same
-    rounding) then runs on those candidates only, in a compiled loop (:func:`seedmap.associate.kernels.box_candidates`)."""
+def box_keys(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple | None:
+    """The sorted search keys of :func:`box_pairs` (arguments of :func:`seedmap.associate.kernels.box_candidates`):
+    both point sets divided by ``half``, so the box is the unit max-norm ball, and the points of B sorted by (unit
+    row, u). None when either set is empty."""
     if len(pa) == 0 or len(pb) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return None
     h = np.maximum(np.asarray(half, np.float64), 1e-9)
     sa = np.asarray(pa, np.float64) / h
     sb = np.asarray(pb, np.float64) / h
@@ -62,9 +57,23 @@ def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndar
     m = 1.0 + 1e-9 + 8.0 * np.finfo(np.float64).eps * (max(rb.max(), ra.max()) - y0 + 2.0) * w
     keyb = (rb - y0) * w + (sb[:, 0] - x0)
     order = np.argsort(keyb, kind="stable")
-    ks = keyb[order]
     qa = (ra - y0) * w + (sa[:, 0] - x0)
-    return box_candidates(ks, order, qa, w, m, sa, sb)
+    return keyb[order], order, qa, w, m, sa, sb
+
+
+def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(i, j)`` with ``|pb[j] - pa[i]| <= half`` on both axes (no N x M, no KD-tree).
+
+    ``half`` (2,) is the half-size of the search box in the same unit as the points. The pairs come
+    grouped by ``i`` in increasing order (within a group by the position of ``pb[j]``).
+    With both axes divided by ``half`` the box is the unit max-norm ball, so the points of B sorted by (unit row, u)
+    give, for each point of A and each of the two or three unit rows its box reaches, one contiguous run of
+    candidates (binary search); the exact test ``|pb[j] / half - pa[i] / half| <= 1`` (a KD-tree's test, same
+    rounding) then runs on those candidates only, in a compiled loop (:func:`seedmap.associate.kernels.box_candidates`)."""
+    keys = box_keys(pa, pb, half)
+    if keys is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return box_candidates(*keys)
 
 
 def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray, cell: float, bin_px: float,
@@ -190,12 +199,12 @@ def field_candidates(ka: np.ndarray, kb: np.ndarray, pred: np.ndarray, sig: np.n
                       gate_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gated candidate pairs within ``gate_sigma`` normalised residual of the predicted field and
     their residuals ``|(kb - ka - pred) / sig|``."""
-    ia, ib = box_pairs(ka + pred, kb, gate_sigma * sig)
+    keys = box_keys(ka + pred, kb, gate_sigma * sig)
+    if keys is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    # the box and the residual gate in one compiled pass, then the travel gates on what is left
+    ia, ib, res = box_residuals(*keys, ka, kb, pred, np.asarray(sig, np.float64), float(gate_sigma))
     ok = gate(ia, ib)
-    ia, ib = ia[ok], ib[ok]
-    r = (kb[ib] - ka[ia] - pred[ia]) / sig
-    res = np.hypot(r[:, 0], r[:, 1])
-    ok = res <= gate_sigma
     return ia[ok], ib[ok], res[ok]
 
 

@@ -1,7 +1,8 @@
 """Compiled (numba) inner loops of the association, each giving exactly what the numpy code it replaces gave.
 
 * :func:`box_candidates` - the candidate runs of :func:`seedmap.associate.field.box_pairs` and their exact box test,
-  pair by pair in the numpy version's order (no repeat/offset arrays of every candidate);
+  pair by pair in the numpy version's order (no repeat/offset arrays of every candidate); :func:`box_residuals`
+  the same with the field's residual gate of :func:`seedmap.associate.field.field_candidates`;
 * :func:`band_sums` - the left/right (or top/bottom) neighbour sums of :func:`seedmap.associate.cost.neighbour_sums`,
   every pair's distance added in the order ``np.bincount`` adds it (same sums bit for bit);
 * :func:`sure_pairs` - the mutual-best, ratio-tested pairs the field is refined from (``mutual_best`` +
@@ -53,27 +54,31 @@ def _search_right(a: np.ndarray, v: float) -> int:
 
 
 @njit(cache=True, nogil=True)
+def _runs(ks: np.ndarray, qa: np.ndarray, w: float, m: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each query ``i`` and row offset -1, 0, 1 the run ``[lo, hi)`` of sorted keys ``ks`` within
+    ``qa[i] + dr * w -+ m``."""
+    n = len(qa)
+    lo = np.empty(3 * n, np.int64)
+    hi = np.empty(3 * n, np.int64)
+    for i in range(n):
+        for c in range(3):
+            base = qa[i] + (c - 1.0) * w
+            lo[3 * i + c] = _search_left(ks, base - m)
+            hi[3 * i + c] = max(_search_right(ks, base + m), lo[3 * i + c])
+    return lo, hi
+
+
+@njit(cache=True, nogil=True)
 def box_candidates(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, m: float, sa: np.ndarray,
                    sb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pairs ``(i, j)`` with ``|sb[j] - sa[i]| <= 1`` on both axes: for each query ``i`` (in order) and row offset
     -1, 0, 1 the run of sorted keys ``ks`` (``order``: their points) within ``qa[i] + dr * w -+ m``, tested exactly."""
-    n = len(qa)
-    lo = np.empty(3 * n, np.int64)
-    hi = np.empty(3 * n, np.int64)
-    total = 0
-    for i in range(n):
-        for c in range(3):
-            base = qa[i] + (c - 1.0) * w
-            a = _search_left(ks, base - m)
-            b = _search_right(ks, base + m)
-            lo[3 * i + c] = a
-            hi[3 * i + c] = b
-            if b > a:
-                total += b - a
+    lo, hi = _runs(ks, qa, w, m)
+    total = int((hi - lo).sum())
     oi = np.empty(total, np.int64)
     oj = np.empty(total, np.int64)
     k = 0
-    for i in range(n):
+    for i in range(len(qa)):
         ax, ay = sa[i, 0], sa[i, 1]
         for c in range(3):
             for p in range(lo[3 * i + c], hi[3 * i + c]):
@@ -83,6 +88,34 @@ def box_candidates(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, 
                     oj[k] = j
                     k += 1
     return oi[:k], oj[:k]
+
+
+@njit(cache=True, nogil=True)
+def box_residuals(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, m: float, sa: np.ndarray,
+                  sb: np.ndarray, ka: np.ndarray, kb: np.ndarray, pred: np.ndarray, sig: np.ndarray,
+                  gate_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs of :func:`box_candidates` whose normalised residual ``hypot((kb[j] - ka[i] - pred[i]) / sig)``
+    (the numpy expression, evaluated the same way) is at most ``gate_sigma``, with that residual."""
+    lo, hi = _runs(ks, qa, w, m)
+    total = int((hi - lo).sum())
+    oi = np.empty(total, np.int64)
+    oj = np.empty(total, np.int64)
+    orr = np.empty(total)
+    k = 0
+    for i in range(len(qa)):
+        ax, ay = sa[i, 0], sa[i, 1]
+        for c in range(3):
+            for p in range(lo[3 * i + c], hi[3 * i + c]):
+                j = order[p]
+                if abs(sb[j, 0] - ax) <= 1.0 and abs(sb[j, 1] - ay) <= 1.0:
+                    r = math.hypot(((kb[j, 0] - ka[i, 0]) - pred[i, 0]) / sig[0],
+                                   ((kb[j, 1] - ka[i, 1]) - pred[i, 1]) / sig[1])
+                    if r <= gate_sigma:
+                        oi[k] = i
+                        oj[k] = j
+                        orr[k] = r
+                        k += 1
+    return oi[:k], oj[:k], orr[:k]
 
 
 @njit(cache=True, nogil=True)
