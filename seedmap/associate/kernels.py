@@ -333,6 +333,12 @@ def knn_grid(pts: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.nda
     cap = min(k + 1, n)
     bd = np.empty(cap)
     bi = np.empty(cap, np.int64)
+    # coordinates in cell order: each cell's points are contiguous
+    sx = np.empty(n)
+    sy = np.empty(n)
+    for s in range(n):
+        sx[s] = pts[members[s], 0]
+        sy[s] = pts[members[s], 1]
     for t in range(nq):
         qx, qy = q[t, 0], q[t, 1]
         cx = min(max(int(math.floor((qx - x0) / cell)), -1), gx)
@@ -349,10 +355,12 @@ def knn_grid(pts: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.nda
                     if 0 <= xx < gx:
                         c = yy * gx + xx
                         for s in range(counts[c], counts[c + 1]):
-                            p = members[s]
-                            dx = pts[p, 0] - qx
-                            dy = pts[p, 1] - qy
-                            cnt = _insert(bd, bi, cnt, cap, dx * dx + dy * dy, p)
+                            dx = sx[s] - qx
+                            dy = sy[s] - qy
+                            d = dx * dx + dy * dy
+                            if cnt == cap and d >= bd[cap - 1]:
+                                continue
+                            cnt = _insert(bd, bi, cnt, cap, d, members[s])
                     xx += step
             if cx - r <= 0 and cy - r <= 0 and cx + r >= gx - 1 and cy + r >= gy - 1:
                 break  # the whole grid searched
