@@ -30,41 +30,29 @@ MAX_RING = 16
 
 
 @njit(cache=True, nogil=True)
-def _search_left(a: np.ndarray, v: float) -> int:
-    lo, hi = 0, len(a)
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True, nogil=True)
-def _search_right(a: np.ndarray, v: float) -> int:
-    lo, hi = 0, len(a)
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if a[mid] <= v:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True, nogil=True)
 def _runs(ks: np.ndarray, qa: np.ndarray, w: float, m: float) -> tuple[np.ndarray, np.ndarray]:
     """For each query ``i`` and row offset -1, 0, 1 the run ``[lo, hi)`` of sorted keys ``ks`` within
-    ``qa[i] + dr * w -+ m``."""
+    ``qa[i] + dr * w -+ m`` (``searchsorted`` left / right): the queries taken in sorted order, so both run ends
+    only move forward along ``ks``."""
     n = len(qa)
+    nk = len(ks)
     lo = np.empty(3 * n, np.int64)
     hi = np.empty(3 * n, np.int64)
-    for i in range(n):
-        for c in range(3):
+    oq = np.argsort(qa)
+    for c in range(3):
+        pl = 0
+        ph = 0
+        for t in range(n):
+            i = oq[t]
             base = qa[i] + (c - 1.0) * w
-            lo[3 * i + c] = _search_left(ks, base - m)
-            hi[3 * i + c] = max(_search_right(ks, base + m), lo[3 * i + c])
+            vl = base - m
+            vh = base + m
+            while pl < nk and ks[pl] < vl:
+                pl += 1
+            while ph < nk and ks[ph] <= vh:
+                ph += 1
+            lo[3 * i + c] = pl
+            hi[3 * i + c] = max(ph, pl)
     return lo, hi
 
 
