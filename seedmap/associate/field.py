@@ -68,8 +68,9 @@ def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndar
     grouped by ``i`` in increasing order (within a group by the position of ``pb[j]``).
     With both axes divided by ``half`` the box is the unit max-norm ball, so the points of B sorted by (unit row, u)
     give, for each point of A and each of the two or three unit rows its box reaches, one contiguous run of
-    candidates (found walking the sorted queries); the exact test ``|pb[j] / half - pa[i] / half| <= 1`` (a KD-tree's test, same
-    rounding) then runs on those candidates only, in a compiled loop (:func:`seedmap.associate.kernels.box_candidates`)."""
+    candidates (found walking the sorted queries); the exact test ``|pb[j] / half - pa[i] / half| <= 1`` (a
+    KD-tree's test, same rounding) then runs on those candidates only, in a compiled loop
+    (:func:`seedmap.associate.kernels.box_candidates`)."""
     keys = box_keys(pa, pb, half)
     if keys is None:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
