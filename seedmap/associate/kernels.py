@@ -207,41 +207,70 @@ def vote_histogram(i: np.ndarray, j: np.ndarray, ka: np.ndarray, kb: np.ndarray,
 
 
 @njit(cache=True, nogil=True)
+def _box3_pass(flat: np.ndarray, base: int, length: int, post: int, tmp: np.ndarray, m2: np.ndarray,
+               m1: np.ndarray) -> None:
+    """One pass of :func:`box3_filter` along the first axis of the ``length`` x ``post`` block at ``base`` of
+    ``flat``, its ``post`` lines advanced together (contiguous reads); ``tmp``, ``m2``, ``m1``: scratch."""
+    for q in range(post):
+        x0 = np.float64(flat[base + q])
+        x1 = np.float64(flat[base + post + q]) if length > 1 else 0.0
+        tmp[q] = (0.0 + x0) + x1
+        m2[q] = 0.0  # input at t - 2
+        m1[q] = x0  # input at t - 1
+        flat[base + q] = np.float32(tmp[q] / 3.0) if tmp[q] != 0.0 else np.float32(0.0)
+    for t in range(1, length):
+        bt = base + t * post
+        last = t + 1 >= length
+        for q in range(post):
+            xn = 0.0 if last else np.float64(flat[bt + post + q])
+            tmp[q] += xn - m2[q]
+            m2[q] = m1[q]
+            m1[q] = flat[bt + q]
+            # most windows of the sparse histogram are empty: 0 / 3 needs no division
+            flat[bt + q] = np.float32(tmp[q] / 3.0) if tmp[q] != 0.0 else np.float32(0.0)
+
+
+@njit(cache=True, nogil=True)
+def _box3_line(flat: np.ndarray, b: int, length: int) -> None:
+    """One pass of :func:`box3_filter` along one contiguous line of ``flat`` starting at ``b``."""
+    x0 = np.float64(flat[b])
+    x1 = np.float64(flat[b + 1]) if length > 1 else 0.0
+    tmp = (0.0 + x0) + x1
+    p2 = 0.0
+    p1 = x0
+    flat[b] = np.float32(tmp / 3.0) if tmp != 0.0 else np.float32(0.0)
+    for t in range(1, length):
+        xn = np.float64(flat[b + t + 1]) if t + 1 < length else 0.0
+        cur = np.float64(flat[b + t])
+        tmp += xn - p2
+        p2 = p1
+        p1 = cur
+        flat[b + t] = np.float32(tmp / 3.0) if tmp != 0.0 else np.float32(0.0)
+
+
+@njit(cache=True, nogil=True)
 def box3_filter(x: np.ndarray) -> np.ndarray:
     """``scipy.ndimage.uniform_filter(x, size=3, mode="constant")`` of a C-contiguous 4-D float32 array, bit for
     bit: per axis, per line, the window's sum in double (a running sum: exact for these float32 values) divided by
-    3 and stored as float32 before the next axis. The lines of one axis advance together (contiguous reads)."""
+    3 and stored as float32 before the next axis. Axes 2 and 3 are filtered block by block of the first two
+    axes' indices (each block stays in cache between its two passes)."""
     out = x.copy()
-    shp = out.shape
+    n0, n1, n2, n3 = out.shape
     flat = out.reshape(-1)
-    size = flat.size
-    for axis in range(4):
-        length = shp[axis]
-        post = 1
-        for a in range(axis + 1, 4):
-            post *= shp[a]
-        pre = size // (length * post) if size else 0
-        tmp = np.empty(post)
-        m2 = np.empty(post)  # input at t - 2
-        m1 = np.empty(post)  # input at t - 1
-        for p in range(pre):
-            b = p * length * post
-            for q in range(post):
-                x0 = np.float64(flat[b + q])
-                x1 = np.float64(flat[b + post + q]) if length > 1 else 0.0
-                tmp[q] = (0.0 + x0) + x1
-                m2[q] = 0.0
-                m1[q] = x0
-                flat[b + q] = np.float32(tmp[q] / 3.0) if tmp[q] != 0.0 else np.float32(0.0)
-            for t in range(1, length):
-                bt = b + t * post
-                for q in range(post):
-                    xn = np.float64(flat[bt + post + q]) if t + 1 < length else 0.0
-                    tmp[q] += xn - m2[q]
-                    m2[q] = m1[q]
-                    m1[q] = flat[bt + q]
-                    # most windows of the sparse histogram are empty: 0 / 3 needs no division
-                    flat[bt + q] = np.float32(tmp[q] / 3.0) if tmp[q] != 0.0 else np.float32(0.0)
+    if flat.size == 0:
+        return out
+    big = max(n1 * n2 * n3, 1)
+    tmp = np.empty(big)
+    m2 = np.empty(big)
+    m1 = np.empty(big)
+    _box3_pass(flat, 0, n0, n1 * n2 * n3, tmp, m2, m1)
+    for a in range(n0):
+        _box3_pass(flat, a * n1 * n2 * n3, n1, n2 * n3, tmp, m2, m1)
+    blk = n2 * n3
+    for c in range(n0 * n1):
+        _box3_pass(flat, c * blk, n2, n3, tmp, m2, m1)
+        for r in range(n2):
+            _box3_line(flat, c * blk + r * n3, n3)
     return out
 
 
