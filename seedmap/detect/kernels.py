@@ -42,14 +42,16 @@ def gather_patches(img: np.ndarray, x: np.ndarray, y: np.ndarray, r: int, lut: n
     ``(H, W, C)`` uint8 ``img``, row-major with the channels of a pixel together, every value mapped by ``lut``,
     0 outside the image."""
     h, w, ch = img.shape
+    flat = img.reshape(-1)
+    rowlen = (2 * r + 1) * ch
     for p in range(len(x)):
         k = 0
-        if r <= x[p] < w - r and r <= y[p] < h - r:  # the whole square inside: no bounds tests
+        if r <= x[p] < w - r and r <= y[p] < h - r:  # the whole square inside: one contiguous run per row
             for yy in range(y[p] - r, y[p] + r + 1):
-                for xx in range(x[p] - r, x[p] + r + 1):
-                    for c in range(ch):
-                        out[p, k] = lut[img[yy, xx, c]]
-                        k += 1
+                s0 = (yy * w + x[p] - r) * ch
+                for e in range(rowlen):
+                    out[p, k + e] = lut[flat[s0 + e]]
+                k += rowlen
             continue
         for dy in range(-r, r + 1):
             yy = y[p] + dy
