@@ -11,7 +11,8 @@
 * :func:`box3_filter` - ``scipy.ndimage.uniform_filter(x, 3, mode="constant")`` of a 4-D float32 array, line by
   line as scipy does (the lines of one axis advanced together);
 * :func:`knn_grid` - the ``k`` nearest points of every query point on a uniform grid, with a flag where the
-  ``k``-th and ``(k+1)``-th distances tie (the caller asks a KD-tree there, so ties resolve as before).
+  ``k``-th and ``(k+1)``-th distances tie or the query is far from every point (the caller asks a KD-tree there,
+  so ties resolve as before).
 
 Kernels compile on first use and are cached on disk (``cache=True``). The method: docs/method/association.md.
 """
