@@ -14,7 +14,7 @@
   ``k``-th and ``(k+1)``-th distances tie or the query is far from every point (the caller asks a KD-tree there,
   so ties resolve as before).
 
-Kernels compile on first use and are cached on disk (``cache=True``). The method: docs/method/association.md.
+Kernels compile on first use and are cached on disk (:func:`seedmap.compiled.kernel`). The method: docs/method/association.md.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from seedmap.compiled import kernel
 
 #: relative gap below which the k-th and (k+1)-th squared distances count as a tie (left to the KD-tree)
 TIE_REL = 1e-9
@@ -34,7 +35,7 @@ KNN_CELL_POINTS = 4.0
 KNN_CELL_POINTS_1 = 12.0
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _runs(ks: np.ndarray, qa: np.ndarray, w: float, m: float) -> tuple[np.ndarray, np.ndarray]:
     """For each query ``i`` and row offset -1, 0, 1 the run ``[lo, hi)`` of sorted keys ``ks`` within
     ``qa[i] + dr * w -+ m`` (``searchsorted`` left / right): the queries taken in sorted order, so both run ends
@@ -61,7 +62,7 @@ def _runs(ks: np.ndarray, qa: np.ndarray, w: float, m: float) -> tuple[np.ndarra
     return lo, hi
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def box_candidates(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, m: float, sa: np.ndarray,
                    sb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pairs ``(i, j)`` with ``|sb[j] - sa[i]| <= 1`` on both axes: for each query ``i`` (in order) and row offset
@@ -83,7 +84,7 @@ def box_candidates(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, 
     return oi[:k], oj[:k]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def box_residuals(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, m: float, sa: np.ndarray,
                   sb: np.ndarray, ka: np.ndarray, kb: np.ndarray, pred: np.ndarray, sig: np.ndarray,
                   gate_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -111,7 +112,7 @@ def box_residuals(ks: np.ndarray, order: np.ndarray, qa: np.ndarray, w: float, m
     return oi[:k], oj[:k], orr[:k]
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def band_sums(sb: np.ndarray, sa: np.ndarray, eps: float, delta: float, ok: np.ndarray,
               use_ok: bool) -> tuple[np.ndarray, np.ndarray]:
     """Sums of distances to the points before / after each point along ``sa`` within the band ``|Δsb| < eps``
@@ -139,7 +140,7 @@ def band_sums(sb: np.ndarray, sa: np.ndarray, eps: float, delta: float, ok: np.n
     return before, after
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def sure_pairs(ia: np.ndarray, ib: np.ndarray, c: np.ndarray, n: int, m: int,
                ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """:func:`seedmap.associate.assignment.mutual_best` followed by its ``ratio_test`` on the same ``c``, in one pass
@@ -194,7 +195,7 @@ def sure_pairs(ia: np.ndarray, ib: np.ndarray, c: np.ndarray, n: int, m: int,
     return oa, ob
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def vote_histogram(i: np.ndarray, j: np.ndarray, ka: np.ndarray, kb: np.ndarray, cell_of: np.ndarray,
                    lo: np.ndarray, binw: np.ndarray, nb: np.ndarray, ncell: int) -> np.ndarray:
     """float32 ``(ncell * nb[0] * nb[1])`` vote counts: pair ``(i, j)`` votes in cell ``cell_of[i]`` at the bin of
@@ -211,7 +212,7 @@ def vote_histogram(i: np.ndarray, j: np.ndarray, ka: np.ndarray, kb: np.ndarray,
     return hist
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _box3_pass(flat: np.ndarray, base: int, length: int, post: int, tmp: np.ndarray, m2: np.ndarray,
                m1: np.ndarray) -> None:
     """One pass of :func:`box3_filter` along the first axis of the ``length`` x ``post`` block at ``base`` of
@@ -235,7 +236,7 @@ def _box3_pass(flat: np.ndarray, base: int, length: int, post: int, tmp: np.ndar
             flat[bt + q] = np.float32(tmp[q] / 3.0) if tmp[q] != 0.0 else np.float32(0.0)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _box3_line(flat: np.ndarray, b: int, length: int) -> None:
     """One pass of :func:`box3_filter` along one contiguous line of ``flat`` starting at ``b``."""
     x0 = np.float64(flat[b])
@@ -253,7 +254,7 @@ def _box3_line(flat: np.ndarray, b: int, length: int) -> None:
         flat[b + t] = np.float32(tmp / 3.0) if tmp != 0.0 else np.float32(0.0)
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def box3_filter(x: np.ndarray) -> np.ndarray:
     """``scipy.ndimage.uniform_filter(x, size=3, mode="constant")`` of a C-contiguous 4-D float32 array, bit for
     bit: per axis, per line, the window's sum in double (a running sum: exact for these float32 values) divided by
@@ -279,7 +280,7 @@ def box3_filter(x: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _insert(bd: np.ndarray, bi: np.ndarray, cnt: int, cap: int, d: float, j: int) -> int:
     """Insert ``(d, j)`` into the ascending best list ``bd``/``bi`` of ``cnt`` entries (at most ``cap``)."""
     if cnt == cap and d >= bd[cap - 1]:
@@ -295,7 +296,7 @@ def _insert(bd: np.ndarray, bi: np.ndarray, cnt: int, cap: int, d: float, j: int
     return cnt + 1 if cnt < cap else cnt
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def _grid(pts: np.ndarray, x0: float, y0: float, x1: float, y1: float, cell: float):
     """Square cells of side ~``cell`` over the box ``[x0, x1] x [y0, y1]``: the cell side used, the grid size
     and the points of each cell (``members[counts[c]:counts[c + 1]]``)."""
@@ -323,7 +324,7 @@ def _grid(pts: np.ndarray, x0: float, y0: float, x1: float, y1: float, cell: flo
     return cell, gx, gy, counts, members
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def knn_grid(pts: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices ``(Q, k)`` of the ``k`` nearest ``pts`` (N, 2; Euclidean, ``k <= N``) of every query ``q`` (Q, 2),
     nearest first, and a flag per query: True where the set is not well defined (the ``k``-th and ``(k+1)``-th

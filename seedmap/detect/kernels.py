@@ -5,13 +5,14 @@
 * :func:`gather_patches` - the refiner's RGB patches around peaks, written straight into its feature rows.
 
 Both map every uint8 value through a 256-entry table computed by the numpy expression they replace, so the floats
-are the same bit for bit. Kernels compile on first use and are cached on disk (``cache=True``).
+are the same bit for bit. Kernels compile on first use and are cached on disk (:func:`seedmap.compiled.kernel`).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from seedmap.compiled import kernel
 
 #: ``uint8 -> float32`` of the network input (``x.astype(np.float32) * (1.0 / 255.0)``)
 INPUT_LUT = np.arange(256).astype(np.uint8).astype(np.float32) * (1.0 / 255.0)
@@ -19,7 +20,7 @@ INPUT_LUT = np.arange(256).astype(np.uint8).astype(np.float32) * (1.0 / 255.0)
 PATCH_LUT = np.arange(256).astype(np.uint8).astype(np.float32) / 255.0
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def tile_batch(pad: np.ndarray, tiles: np.ndarray, t: int, s: int, lut: np.ndarray) -> np.ndarray:
     """``(K, C, s, s)`` float32: for tile ``(ty, tx)`` of ``tiles`` (K, 2) the window ``pad[ty t: ty t + s,
     tx t: tx t + s]`` of the ``(H, W, C)`` uint8 image, channels first, every value mapped by ``lut``."""
@@ -36,7 +37,7 @@ def tile_batch(pad: np.ndarray, tiles: np.ndarray, t: int, s: int, lut: np.ndarr
     return out
 
 
-@njit(cache=True, nogil=True)
+@kernel
 def gather_patches(img: np.ndarray, x: np.ndarray, y: np.ndarray, r: int, lut: np.ndarray, out: np.ndarray) -> None:
     """Write into ``out[p, :(2r+1)^2 C]`` the square of half size ``r`` around pixel ``(x[p], y[p])`` of the
     ``(H, W, C)`` uint8 ``img``, row-major with the channels of a pixel together, every value mapped by ``lut``,
