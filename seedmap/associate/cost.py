@@ -10,6 +10,7 @@ import numpy as np
 
 from seedmap.associate.base import FULL_RES_WIDTH
 from seedmap.associate.config import SemanticConfig
+from seedmap.associate.kernels import band_sums
 
 #: regulariser of the ratio's denominator (full-res px), paper 0.01
 RATIO_EPS = 0.01
@@ -22,26 +23,6 @@ def full_res_scale(width: int) -> float:
     return FULL_RES_WIDTH / float(width)
 
 
-def _band_pairs(a: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Every unordered index pair with ``|a_j - a_i| < eps``, listed once (sort + searchsorted, no
-    N x N): ``(order, i, j)`` with ``order`` the stable argsort of ``a`` and ``i < j`` *positions in
-    that sorted order* (``order[i]``, ``order[j]`` are the original indices), grouped by ``i``.
-    Sorted positions let callers gather from sorted copies (contiguous reads); int32 indices."""
-    order = np.argsort(a, kind="stable")
-    sa = a[order]
-    n = len(sa)
-    it = np.int32 if n < 2**31 - 1 else np.int64
-    hi = np.searchsorted(sa, sa + eps, side="left")
-    cnt = np.maximum(hi - np.arange(n) - 1, 0)
-    total = int(cnt.sum())
-    if total == 0:
-        return order, np.zeros(0, it), np.zeros(0, it)
-    # j = i + 1 + (position within i's run), written as one running index minus run starts
-    j = np.arange(1, total + 1, dtype=it)
-    j -= np.repeat((np.cumsum(cnt) - cnt - np.arange(n)).astype(it), cnt)
-    return order, np.repeat(np.arange(n, dtype=it), cnt), j
-
-
 def neighbour_sums(
     kp: np.ndarray, delta: float, eps: float, valid: np.ndarray | None = None
 ) -> np.ndarray:
@@ -50,42 +31,24 @@ def neighbour_sums(
     ``kp`` (N, 2) in any pixel unit consistent with ``delta`` and ``eps``. ``valid`` (N,) bool marks
     which points may serve as neighbours (default: all). Candidate pairs come from sorting along
     the band axis (only points within ``eps`` are ever paired) and every unordered pair is
-    visited once (``q`` left of ``p`` <=> ``p`` right of ``q``, same distance), so the work is
-    ~N x band density / 2, not N x N.
+    visited once (``q`` left of ``p`` <=> ``p`` right of ``q``, same distance) in a compiled loop
+    (:func:`seedmap.associate.kernels.band_sums`), so the work is ~N x band density / 2, not N x N.
     """
     kp = np.asarray(kp, np.float64).reshape(-1, 2)
     n = len(kp)
     out = np.zeros((n, 4))
     if n == 0:
         return out
-    ok = np.ones(n, bool) if valid is None else np.asarray(valid, bool).reshape(-1)
+    use_ok = valid is not None
+    ok = np.asarray(valid, bool).reshape(-1) if use_ok else np.ones(1, bool)
     # axis 0: horizontal band (|dy| < eps) -> left / right sets; axis 1: vertical -> top / bottom
     for along, band, col in ((0, 1, 0), (1, 0, 2)):
-        # pairs indexed in the band-sorted order (contiguous gathers; the sums are scattered back
-        # at the end)
-        order, i, j = _band_pairs(kp[:, band], eps)
-        if len(i) == 0:
-            continue
-        sb, sa = kp[order, band], kp[order, along]
-        d = sa[j]
-        d -= sa[i]
-        keep = np.flatnonzero((d != 0) & (np.abs(d) < delta))
-        i, j, d = i[keep], j[keep], d[keep]
-        dist = np.hypot(d, sb[j] - sb[i])
-        # of each pair, ``first`` lies before (left of / above) ``second``: first is in second's
-        # left/top set, second in first's right/bottom set
-        before = d > 0
-        first = np.where(before, i, j)
-        second = np.where(before, j, i)
-        if valid is None:
-            out[order, col] = np.bincount(second, dist, minlength=n)
-            out[order, col + 1] = np.bincount(first, dist, minlength=n)
-        else:
-            oks = ok[order]
-            sel = oks[first]
-            out[order, col] = np.bincount(second[sel], dist[sel], minlength=n)
-            sel = oks[second]
-            out[order, col + 1] = np.bincount(first[sel], dist[sel], minlength=n)
+        # points in band order (each point's band partners follow it contiguously); sums scattered back
+        order = np.argsort(kp[:, band], kind="stable")
+        before, after = band_sums(np.ascontiguousarray(kp[order, band]), np.ascontiguousarray(kp[order, along]),
+                                  float(eps), float(delta), ok[order] if use_ok else ok, use_ok)
+        out[order, col] = before
+        out[order, col + 1] = after
     return out
 
 

@@ -8,12 +8,12 @@ ambiguity test. The method and its measured limits: docs/method/association.md.
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import uniform_filter
 from scipy.spatial import cKDTree
 
-from seedmap.associate.assignment import assign_capped, mutual_best, ratio_test
+from seedmap.associate.assignment import assign_capped, ratio_test
 from seedmap.associate.config import SemanticConfig
 from seedmap.associate.cost import pair_cost
+from seedmap.associate.kernels import box3_filter, box_candidates, box_residuals, knn_grid, sure_pairs, vote_histogram
 from seedmap.records import Matches
 
 #: side of the image cells of the coarse displacement histogram (full-res px)
@@ -38,17 +38,12 @@ FIELD_ITERS = 4
 FIELD_SEED_RATIO = 0.3
 
 
-def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(i, j)`` with ``|pb[j] - pa[i]| <= half`` on both axes (no N x M, no KD-tree).
-
-    ``half`` (2,) is the half-size of the search box in the same unit as the points. The pairs come
-    grouped by ``i`` in increasing order (within a group by the position of ``pb[j]``).
-    With both axes divided by ``half`` the box is the unit max-norm ball, so the points of B sorted by (unit row, u) give, for each point of A and
-    each of the two or three unit rows its box reaches, one contiguous run of candidates
-    (``searchsorted`` on sorted queries); the exact test ``|pb[j] / half - pa[i] / half| <= 1``
-    (a KD-tree's test, same rounding) then runs on those candidates only."""
+def box_keys(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple | None:
+    """The sorted search keys of :func:`box_pairs` (arguments of :func:`seedmap.associate.kernels.box_candidates`):
+    both point sets divided by ``half``, so the box is the unit max-norm ball, and the points of B sorted by (unit
+    row, u). None when either set is empty."""
     if len(pa) == 0 or len(pb) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return None
     h = np.maximum(np.asarray(half, np.float64), 1e-9)
     sa = np.asarray(pa, np.float64) / h
     sb = np.asarray(pb, np.float64) / h
@@ -62,26 +57,24 @@ def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndar
     m = 1.0 + 1e-9 + 8.0 * np.finfo(np.float64).eps * (max(rb.max(), ra.max()) - y0 + 2.0) * w
     keyb = (rb - y0) * w + (sb[:, 0] - x0)
     order = np.argsort(keyb, kind="stable")
-    ks = keyb[order]
     qa = (ra - y0) * w + (sa[:, 0] - x0)
-    oa = np.argsort(qa, kind="stable")  # sorted queries: searchsorted walks the array in order
-    qs = qa[oa]
-    lo = np.empty((len(sa), 3), np.int64)
-    cnt = np.empty((len(sa), 3), np.int64)
-    for c, dr in enumerate((-1.0, 0.0, 1.0)):
-        base = qs + dr * w
-        lo[oa, c] = np.searchsorted(ks, base - m, side="left")
-        cnt[oa, c] = np.searchsorted(ks, base + m, side="right") - lo[oa, c]
-    lo, cnt = lo.reshape(-1), cnt.reshape(-1)
-    total = int(cnt.sum())
-    if total == 0:
+    return keyb[order], order, qa, w, m, sa, sb
+
+
+def box_pairs(pa: np.ndarray, pb: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs ``(i, j)`` with ``|pb[j] - pa[i]| <= half`` on both axes (no N x M, no KD-tree).
+
+    ``half`` (2,) is the half-size of the search box in the same unit as the points. The pairs come
+    grouped by ``i`` in increasing order (within a group by the position of ``pb[j]``).
+    With both axes divided by ``half`` the box is the unit max-norm ball, so the points of B sorted by (unit row, u)
+    give, for each point of A and each of the two or three unit rows its box reaches, one contiguous run of
+    candidates (found walking the sorted queries); the exact test ``|pb[j] / half - pa[i] / half| <= 1`` (a
+    KD-tree's test, same rounding) then runs on those candidates only, in a compiled loop
+    (:func:`seedmap.associate.kernels.box_candidates`)."""
+    keys = box_keys(pa, pb, half)
+    if keys is None:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    q = np.repeat(np.arange(len(lo)), cnt)
-    offs = np.arange(total) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    j = order[lo[q] + offs]
-    i = q // 3
-    ok = (np.abs(sb[j, 0] - sa[i, 0]) <= 1.0) & (np.abs(sb[j, 1] - sa[i, 1]) <= 1.0)
-    return i[ok].astype(np.int64), j[ok].astype(np.int64)
+    return box_candidates(*keys)
 
 
 def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray, cell: float, bin_px: float,
@@ -112,15 +105,13 @@ def coarse_field(ka: np.ndarray, kb: np.ndarray, lo: np.ndarray, hi: np.ndarray,
     i = sub[i]
     pcx = np.clip((ka[:, 0] // cell).astype(int), 0, ncx - 1)
     pcy = np.clip((ka[:, 1] // cell).astype(int), 0, ncy - 1)
-    d = kb[j] - ka[i]
-    ub = np.clip(((d - lo) / binw).astype(int), 0, nb - 1)
-    flat = ((pcx * ncy + pcy)[i] * nb[0] + ub[:, 0]) * nb[1] + ub[:, 1]
-    hist = np.bincount(flat, minlength=ncx * ncy * nb[0] * nb[1]).astype(np.float32)  # votes per bin
+    # votes per (cell, u bin, v bin)
+    hist = vote_histogram(i, j, ka, kb, (pcx * ncy + pcy).astype(np.int64), lo, binw, nb.astype(np.int64), ncx * ncy)
     hist = hist.reshape(ncx, ncy, nb[0], nb[1])
     g = hist.sum((0, 1))
     gi = np.unravel_index(int(np.argmax(g)), g.shape)
     glob = lo + (np.asarray(gi) + 0.5) * binw
-    sm = uniform_filter(hist, size=(3, 3, 3, 3), mode="constant")
+    sm = box3_filter(hist)  # scipy.ndimage.uniform_filter(hist, 3, mode="constant"), bit for bit
     flat_sm = sm.reshape(ncx, ncy, -1)
     best = flat_sm.argmax(-1)
     has = flat_sm.max(-1) > 0
@@ -140,8 +131,7 @@ def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np
     if len(m) < 3:
         return fallback
     pa = ka[m.idx_a]
-    tree = cKDTree(pa)
-    at_seed = loo_local_median(pa, kb[m.idx_b] - pa, k, tree)
+    at_seed = loo_local_median(pa, kb[m.idx_b] - pa, k)
     # a seed match's own keypoint is its nearest seed (distance 0) unless two seed matches share
     # a position (then the KD-tree decides, as before); only the other keypoints are queried
     near = np.full(len(ka), -1, np.int64)
@@ -150,7 +140,7 @@ def local_field(ka: np.ndarray, m: Matches, kb: np.ndarray, k: int, fallback: np
         near[:] = -1
     rest = np.flatnonzero(near < 0)
     if len(rest):
-        near[rest] = np.asarray(tree.query(ka[rest], 1)[1]).reshape(-1)
+        near[rest] = nearest_points(pa, ka[rest], 1)[:, 0]
     return at_seed[near]
 
 
@@ -169,19 +159,30 @@ def _median_rows(v: np.ndarray) -> np.ndarray:
     return (p[..., h - 1] + p[..., h]) / 2.0
 
 
-def loo_local_median(pos: np.ndarray, val: np.ndarray, k: int, tree=None) -> np.ndarray:
+def nearest_points(pts: np.ndarray, q: np.ndarray, k: int) -> np.ndarray:
+    """Indices ``(Q, k)`` of the ``k`` nearest ``pts`` of every query ``q``, the sets ``cKDTree(pts).query(q, k)``
+    gives: a compiled grid search (:func:`seedmap.associate.kernels.knn_grid`), and the KD-tree itself for the
+    queries whose ``k``-th and ``(k+1)``-th nearest lie at the same distance (the tree's order decides there) or
+    far from every point."""
+    pts = np.ascontiguousarray(pts, np.float64)
+    q = np.ascontiguousarray(q, np.float64)
+    nn, left = knn_grid(pts, q, k)
+    if left.any():
+        nn[left] = np.asarray(cKDTree(pts).query(q[left], k)[1]).reshape(-1, k)
+    return nn
+
+
+def loo_local_median(pos: np.ndarray, val: np.ndarray, k: int) -> np.ndarray:
     """Median of ``val`` over the ``k`` nearest *other* points of every point ``pos`` (N, 2).
 
     ``val`` (N, D). Leave-one-out, so an outlier never hides itself in its own median; with fewer
-    than 2 points the values themselves are returned (no neighbours to compare with). ``tree``: a
-    ``cKDTree`` of ``pos`` when the caller has one (built here otherwise)."""
+    than 2 points the values themselves are returned (no neighbours to compare with)."""
     n = len(pos)
     val = np.asarray(val, np.float64)
     if n < 2:
         return val.copy()
     kk = min(k + 1, n)
-    _, nn = (tree if tree is not None else cKDTree(pos)).query(pos, kk)
-    nn = np.asarray(nn).reshape(n, kk)
+    nn = nearest_points(pos, pos, kk)
     is_self = nn == np.arange(n)[:, None]
     if is_self[:, 0].all():  # the usual case: every point is its own nearest neighbour
         others = nn[:, 1:]
@@ -199,12 +200,12 @@ def field_candidates(ka: np.ndarray, kb: np.ndarray, pred: np.ndarray, sig: np.n
                       gate_sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Gated candidate pairs within ``gate_sigma`` normalised residual of the predicted field and
     their residuals ``|(kb - ka - pred) / sig|``."""
-    ia, ib = box_pairs(ka + pred, kb, gate_sigma * sig)
+    keys = box_keys(ka + pred, kb, gate_sigma * sig)
+    if keys is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    # the box and the residual gate in one compiled pass, then the travel gates on what is left
+    ia, ib, res = box_residuals(*keys, ka, kb, pred, np.asarray(sig, np.float64), float(gate_sigma))
     ok = gate(ia, ib)
-    ia, ib = ia[ok], ib[ok]
-    r = (kb[ib] - ka[ia] - pred[ia]) / sig
-    res = np.hypot(r[:, 0], r[:, 1])
-    ok = res <= gate_sigma
     return ia[ok], ib[ok], res[ok]
 
 
@@ -246,8 +247,8 @@ def field_estimate(ka: np.ndarray, kb: np.ndarray, gate, lo: np.ndarray, hi: np.
         sig = coarse_sig ** (1 - t) * np.asarray(sigma) ** t if it else coarse_sig
         ia, ib, res = field_candidates(ka, kb, pred, sig, gate, cfg.field_gate_sigma)
         # the next field comes from unambiguous mutual-best pairs only (cheap, no assignment)
-        sure = mutual_best(ia, ib, res, n, m)
-        sure = ratio_test(sure, ia, ib, res, n, m, FIELD_SEED_RATIO)
+        a_sure, b_sure = sure_pairs(ia, ib, res, n, m, FIELD_SEED_RATIO)  # mutual_best + ratio_test
+        sure = Matches(a_sure, b_sure, np.zeros(len(a_sure)))
         pred = local_field(ka, sure, kb, FIELD_K, pred)
         if fixed_v is not None:
             pred[:, 1] = fixed_v

@@ -26,6 +26,7 @@ from seedmap.detect.autoscale import estimate_seed_px
 from seedmap.detect.base import Detector, check_image, logit, map_to_input, register_detector
 from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path
 from seedmap.detect.config import TRAINED_SEED_PX, CnnConfig
+from seedmap.detect.kernels import INPUT_LUT, tile_batch
 from seedmap.detect.runtime import WEIGHTS_DIR, load_session, shipped_or_path
 from seedmap.errors import ConfigError
 from seedmap.records import Detections, StereoDetections, StereoFrame
@@ -192,9 +193,14 @@ def decode(out: np.ndarray, threshold: float, valid: tuple[int, int, int, int], 
     acc = np.zeros((6, len(xs)), np.float32)
     ws = np.zeros(len(xs), np.float32)
     sgn = np.array([-1, -1, 1, 1, 1, 1], np.float32)[:, None]
+    # all 7 outputs at the 3x3 neighbours of every peak in one gather: (3, 3, 7, K); peaks are >= 1 px inside
+    # their tile
+    at = ((ns * 7)[None, :] + np.arange(7)[:, None]) * (h * w) + ys * w + xs
+    nbr = np.take(np.ascontiguousarray(out).reshape(-1),
+                  at[None, None] + (np.arange(-1, 2)[:, None] * w + np.arange(-1, 2)[None, :])[..., None, None])
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
-            v = out[ns, :, ys + dy, xs + dx].T  # (7, K); peaks are >= 1 px inside their tile
+            v = nbr[dy + 1, dx + 1]  # (7, K)
             wk = (1.0 / (1.0 + np.exp(-v[0]))) ** smooth
             # a neighbour's prediction, moved to the peak pixel: edges/keypoint shift by (dx, dy)
             off = np.array([dx, dy, dx, dy, dx, dy], np.float32)[:, None]
@@ -317,8 +323,8 @@ class CnnDetector(Detector):
             pad = cv2.copyMakeBorder(img, m, nty * t - h + m, m, ntx * t - w + m, cv2.BORDER_CONSTANT, value=0)
             for k0 in range(0, len(tiles), BATCH):
                 tb = tiles[k0:k0 + BATCH]
-                x = np.stack([pad[ty * t: ty * t + s, tx * t: tx * t + s] for ty, tx in tb])
-                x = np.ascontiguousarray((x.astype(np.float32) * (1.0 / 255.0)).transpose(0, 3, 1, 2))
+                # the windows, channels first, / 255 (one compiled pass)
+                x = tile_batch(pad, np.ascontiguousarray(tb, np.int64), t, s, INPUT_LUT)
                 d = decode(self._run(x), self.peak_threshold, (m, m + t, m, m + t), SMOOTH)
                 # image pixel = tile origin (minus the margin) + position in the padded window
                 parts.append((d[1:], d[1] + tb[d[0], 1] * t - m, d[2] + tb[d[0], 0] * t - m))

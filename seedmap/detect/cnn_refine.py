@@ -51,7 +51,9 @@ def peak_features(img: np.ndarray, x: np.ndarray, y: np.ndarray, raw: np.ndarray
     if n == 0:
         return np.zeros((0, 3 * (2 * r + 1) ** 2 + N_EXTRA), np.float32)
     h, w = img.shape[:2]
-    patch = patches(img, np.clip(np.asarray(x, np.int64), 0, w - 1), np.clip(np.asarray(y, np.int64), 0, h - 1), r)
+    # the patch columns and, after them, the N_EXTRA columns filled below (no concatenation)
+    feats = patches(img, np.clip(np.asarray(x, np.int64), 0, w - 1), np.clip(np.asarray(y, np.int64), 0, h - 1), r,
+                    extra=N_EXTRA)
     rw = np.asarray(raw, np.float32).copy()
     rw[:, 1:5] /= SCALE_PX
     # neighbour context: the strongest other peak within NEIGHBOUR_PX whose logit is higher
@@ -75,7 +77,9 @@ def peak_features(img: np.ndarray, x: np.ndarray, y: np.ndarray, raw: np.ndarray
     nb[:, 5] = np.where(has, rw[b, 2] + rw[b, 4], 0.0)
     nb[:, 6] = (ok & (d <= 4.0)).sum(axis=1)
     nb[:, 7] = ok.sum(axis=1)
-    return np.concatenate([patch, rw, nb], axis=1)
+    feats[:, -N_EXTRA:-8] = rw
+    feats[:, -8:] = nb
+    return feats
 
 
 @dataclass

@@ -12,23 +12,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from seedmap.detect.kernels import PATCH_LUT, gather_patches
 from seedmap.errors import InputError
 
 #: the weights kind this project writes (checked on load)
 KIND = "cnn_refiner"
 
 
-def patches(img: np.ndarray, x: np.ndarray, y: np.ndarray, r: int) -> np.ndarray:
-    """``(N, (2r+1)^2 * channels)`` float32: the square of half size ``r`` around each pixel ``x``, ``y`` (N,) int
-    (inside the image) of the uint8 ``img`` (H, W) or (H, W, C), / 255, zero outside the image; row-major, the
-    channels of a pixel together. One gather of flat indices into the padded image."""
-    pad = cv2.copyMakeBorder(img, r, r, r, r, cv2.BORDER_CONSTANT, value=0)
-    ch = 1 if pad.ndim == 2 else pad.shape[2]
-    wp = pad.shape[1]
-    idx = np.arange(-r, r + 1)
-    offs = ((idx[:, None] * wp + idx[None, :])[..., None] * ch + np.arange(ch)).ravel()
-    base = ((np.asarray(y, np.int64) + r) * wp + (np.asarray(x, np.int64) + r)) * ch
-    return np.take(pad.ravel(), base[:, None] + offs[None, :]).astype(np.float32) / 255.0
+def patches(img: np.ndarray, x: np.ndarray, y: np.ndarray, r: int, extra: int = 0) -> np.ndarray:
+    """``(N, (2r+1)^2 * channels + extra)`` float32: the square of half size ``r`` around each pixel ``x``, ``y``
+    (N,) int (inside the image) of the uint8 ``img`` (H, W) or (H, W, C), / 255, zero outside the image; row-major,
+    the channels of a pixel together; ``extra`` columns left for the caller (uninitialised). One compiled gather
+    (:func:`seedmap.detect.kernels.gather_patches`)."""
+    img = np.ascontiguousarray(img)
+    im3 = img.reshape(img.shape[0], img.shape[1], -1)
+    ch = im3.shape[2]
+    n = len(x)
+    out = np.empty((n, (2 * r + 1) ** 2 * ch + int(extra)), np.float32)
+    gather_patches(im3, np.ascontiguousarray(x, np.int64), np.ascontiguousarray(y, np.int64), int(r), PATCH_LUT, out)
+    return out
 
 
 @dataclass
