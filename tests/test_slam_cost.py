@@ -21,7 +21,7 @@ def _row(length: float):
     for i in range(len(rg.gt)):
         r = slam.register_frame(m.features_from_detections(observe(rg, i, rng)))
         assert r.ok, r.lost_reason
-        nnz.append((slam.isam.treeNnz(), slam.initial.size()))
+        nnz.append((slam.backend.isam.treeNnz(), slam.initial.size()))
     return rg, slam, np.array(nnz, float)
 
 
