@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+import pytest
 
 from seedmap.associate import make_matcher
 from seedmap.slam.config import SlamConfig
@@ -21,7 +22,7 @@ def _row(length: float):
     for i in range(len(rg.gt)):
         r = slam.register_frame(m.features_from_detections(observe(rg, i, rng)))
         assert r.ok, r.lost_reason
-        nnz.append((slam.isam.treeNnz(), slam.initial.size()))
+        nnz.append((slam.backend.isam.treeNnz(), slam.initial.size()))
     return rg, slam, np.array(nnz, float)
 
 
@@ -48,22 +49,25 @@ def test_no_per_frame_copy_of_the_estimate_is_kept():
     np.testing.assert_array_equal(est.atPose3(gtsam.symbol("x", slam.frames[-1])).matrix(), slam.online_poses[-1])
 
 
-def test_a_frame_rejected_after_the_update_leaves_the_accepted_map(monkeypatch):
+@pytest.mark.parametrize(("online", "name"), [("isam2", "isam2"), ("fixed_lag", "fixed-lag")])
+def test_a_frame_rejected_after_the_update_leaves_the_accepted_map(monkeypatch, online, name):
     import seedmap.slam.core as core
 
     rng = np.random.default_rng(5)
     rg = make_range(rng, length=0.3, seeds_per_panicle=150)
     cfg = SlamConfig()
+    cfg.backend.online = online
+    cfg.backend.lag_frames = 2
     m = make_matcher("seeds", rg.calib, cfg=cfg)
     slam = SemanticSlam(rg.calib, m, cfg, first_pose=rg.gt.poses[0])
     n = len(rg.gt)
     for i in range(n - 1):
         assert slam.register_frame(m.features_from_detections(observe(rg, i, rng))).ok
-    monkeypatch.setattr(core, "MAX_CORRECTION_M", -1.0)  # iSAM2 takes the last frame, the check rejects it
+    monkeypatch.setattr(core, "MAX_CORRECTION_M", -1.0)  # the smoother takes the last frame, the check rejects it
     r = slam.register_frame(m.features_from_detections(observe(rg, n - 1, rng)))
     assert not r.ok and "diverged" in r.lost_reason
     assert slam.estimate.size() == slam.initial.size()  # the rejected frame's variables are left out
-    traj, values, name = slam.finalize()
-    assert len(traj) == n - 1 and name == "isam2+lm"
+    traj, values, backend = slam.finalize()
+    assert len(traj) == n - 1 and backend == f"{name}+lm"
     err = np.linalg.norm(traj.positions - rg.gt.positions[: n - 1], axis=1)
     assert err.max() < 0.005

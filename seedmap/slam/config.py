@@ -42,8 +42,10 @@ class BackendConfig(ConfigModel):
     min_observations: int = Field(2, ge=2)
     #: smallest disparity of an observation that counts towards that (full-res px, facts.md)
     min_disparity_px: float = Field(20.0, ge=0)
-    #: online optimiser per frame
-    online: Literal["isam2", "none"] = "isam2"
+    #: online optimiser per frame: isam2 (whole graph), fixed_lag (bounded smoother), none (motion only)
+    online: Literal["isam2", "fixed_lag", "none"] = "isam2"
+    #: fixed_lag: extra frames a pose or landmark stays in the smoother after the last frame that involved it
+    lag_frames: int = Field(0, ge=0)
     #: optional batch optimisation of the whole graph at the end
     final_batch: Literal["none", "lm", "dogleg"] = "lm"
     #: most new landmarks admitted to the graph per frame (spread over a 16 x 12 grid; None = all, the rest stay tracks)

@@ -15,7 +15,8 @@ sigmas ordered ``[rotation (rad); translation (m)]`` as GTSAM's Pose3 tangent sp
 becomes a landmark (enters the graph, with all its buffered observations) once it has
 ``min_observations`` stereo observations with disparity ≥ ``min_disparity`` – a landmark seen once
 is unconstrained along nothing but still poorly conditioned, and this rule keeps
-``IndeterminantLinearSystemException`` away. iSAM2 updates once per frame; :meth:`finalize`
+``IndeterminantLinearSystemException`` away. The online back-end (``backend.online``, see
+``seedmap.slam.backends``: iSAM2, a fixed-lag smoother, or none) updates once per frame; :meth:`finalize`
 optionally re-solves the whole graph in batch (Levenberg–Marquardt or Dogleg).
 
 Lost: fewer than ``lost.min_inliers`` verified 3D matches to the previous frame, or the optimiser
@@ -37,6 +38,7 @@ from gtsam.symbol_shorthand import L, X
 
 from seedmap.associate.base import FULL_RES_WIDTH, FrameFeatures, Matcher
 from seedmap.records import Matches, StereoCalib, StereoFrame, Trajectory
+from seedmap.slam.backends import OnlineBackend, make_online_backend
 from seedmap.slam.config import SlamConfig
 from seedmap.slam.motion import ransac_motion, ransac_translation
 
@@ -45,9 +47,6 @@ HUBER_K = 1.345
 #: prior on the first pose: rotation (rad) and translation (m) sigmas, i.e. practically fixed
 PRIOR_SIGMA_ROT_RAD = 1e-4
 PRIOR_SIGMA_TRANS_M = 1e-4
-#: iSAM2 relinearisation threshold and number of updates between relinearisation checks
-ISAM_RELINEARIZE_THRESHOLD = 0.01
-ISAM_RELINEARIZE_SKIP = 1
 #: a per-frame correction of the motion estimate larger than this (m) means the optimiser failed
 MAX_CORRECTION_M = 0.10
 #: least-squares refits of the RANSAC motion on its inliers
@@ -127,10 +126,7 @@ class SemanticSlam:
         self.between_noise = gtsam.noiseModel.Diagonal.Sigmas(
             np.r_[np.full(3, b.between_sigma_rot_rad), np.full(3, b.between_sigma_trans_m)]
         )
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(ISAM_RELINEARIZE_THRESHOLD)
-        params.relinearizeSkip = ISAM_RELINEARIZE_SKIP
-        self.isam = gtsam.ISAM2(params) if b.online == "isam2" else None
+        self.backend: OnlineBackend = make_online_backend(b.online, b.lag_frames)
         self.graph = gtsam.NonlinearFactorGraph()  # everything added so far (for the final batch)
         self.initial = gtsam.Values()
         self.frames: list[int] = []  # dataset indices of the registered frames, in order
@@ -165,18 +161,12 @@ class SemanticSlam:
             pts[a] = self.calib.triangulate(f.kp_left[a], f.kp_right[b, 0])
         return ridx, obs, pts
 
-    def _last_keys(self, k: int, track: np.ndarray) -> gtsam.KeyGroupMap:
-        """iSAM2 ordering constraint: the poses of the active window (from the first frame of the oldest track
-        seen in frame ``k`` on) are eliminated last, the landmarks before them. iSAM2's default puts every
-        variable of the new factors, all landmarks of the frame, into a root clique whose dense factors grow
-        with the map; only the new pose last leaves old poses stuck in the root (docs/method/slam_live.md)."""
+    def _window(self, k: int, track: np.ndarray) -> list[int]:
+        """The active window of frame ``k``: the registered frames from the first frame of the oldest track seen in
+        frame ``k`` on, then ``k`` (the poses that observe what frame ``k`` sees)."""
         seen = track[track >= 0]
         first = min((self.tracks[int(t)].obs[0][0] for t in seen), default=k)
-        last = gtsam.KeyGroupMap()
-        for j in self.frames[bisect.bisect_left(self.frames, first):]:
-            last.insert2(X(j), 1)
-        last.insert2(X(k), 1)
-        return last
+        return self.frames[bisect.bisect_left(self.frames, first):] + [k]
 
     def _declare_lost(self, f: FrameFeatures, reason: str, res: FrameResult) -> FrameResult:
         self.lost = True
@@ -305,12 +295,7 @@ class SemanticSlam:
         # back-end
         t0 = time.perf_counter()
         try:
-            if self.isam is not None:
-                self.isam.update(graph, values, [], self._last_keys(k, track))
-                # the new pose only: the whole estimate is a copy of every variable, O(map) per frame
-                T_opt = self.isam.calculateEstimatePose3(X(k)).matrix()
-            else:
-                T_opt = values.atPose3(X(k)).matrix()
+            T_opt = self.backend.update(k, graph, values, lambda: self._window(k, track))
         except RuntimeError as e:  # IndeterminantLinearSystemException and friends
             tm["backend"] = (time.perf_counter() - t0) * 1e3
             return self._declare_lost(f, f"optimiser failed ({type(e).__name__}: {str(e).splitlines()[0][:80]})", res)
@@ -360,25 +345,12 @@ class SemanticSlam:
 
     @property
     def estimate(self) -> gtsam.Values:
-        """iSAM2's current estimate of the variables of :attr:`graph` (empty without iSAM2), computed on
-        demand: a copy of the whole map, so it is not taken per frame."""
-        if self.isam is None or self.initial.size() == 0:
-            return gtsam.Values()
-        try:
-            est = self.isam.calculateEstimate()
-        except RuntimeError:  # an update that threw (the frame that lost the track) can leave no usable estimate
-            return gtsam.Values(self.initial)
-        if est.size() == self.initial.size():
-            return est
-        v = gtsam.Values()  # a rejected last frame left its variables in iSAM2: keep the accepted ones
-        for key in self.initial.keys():
-            v.insert(key, est.atPose3(key) if gtsam.Symbol(key).chr() == ord("x") else est.atPoint3(key))
-        return v
+        """The online back-end's current estimate of the variables of :attr:`graph` (the initial values without
+        one), computed on demand: a copy of the whole map, so it is not taken per frame."""
+        return self.backend.estimate(self.initial)
 
     def _current_values(self) -> gtsam.Values:
-        """Best current values of every variable in :attr:`graph` (iSAM2 estimate, else initial)."""
-        if self.isam is None or self.initial.size() == 0:
-            return gtsam.Values(self.initial)
+        """Best current values of every variable in :attr:`graph` (online estimate, else initial)."""
         return self.estimate
 
     def finalize(self) -> tuple[Trajectory, gtsam.Values, str]:
@@ -388,7 +360,7 @@ class SemanticSlam:
         estimate (and says so in ``backend_name``).
         """
         values = self._current_values()
-        name = "isam2" if self.isam is not None else "motion-only"
+        name = self.backend.name
         mode = self.cfg.backend.final_batch
         if mode != "none" and len(self.frames) > 1:
             try:
