@@ -124,4 +124,5 @@ def demo_cmd(
     from seedmap.detect import detector_label
 
     print_slam_metrics(res.metrics, f"seedmap demo: seeds matcher, detector {detector_label(detector)}")
-    typer.echo(f"results in {out} (report.md, topview.png, landmarks.ply, trajectory.tum)")
+    typer.echo(f"results in {out} (report.md, topview.png, landmarks.ply, trajectory.tum, panicles.csv, "
+               "phenotype.html)")
