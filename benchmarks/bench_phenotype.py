@@ -81,12 +81,11 @@ def slam(dataset: Path, out: Path, detector: str) -> float | None:
 def phenotype_step(result: Path, data: Path, out: Path, cfg):  # noqa: ANN001, ANN201
     """``seedmap phenotype RESULT --data DATA --out OUT`` in-process (the seeds detected again in the frames that
     see a panicle whole); (wall, CPU) seconds and the images, their detections kept for the evaluation."""
-    from seedmap.cli.phenotype import _images
     from seedmap.outputs import output_dir
-    from seedmap.phenotype.run import phenotype_result, write_phenotype
+    from seedmap.phenotype.run import phenotype_result, result_images, write_phenotype
 
     t0, c0 = time.perf_counter(), time.process_time()
-    images = _images(result, data, None)
+    images = result_images(result, data)
     ph = phenotype_result(result, cfg, images)
     with output_dir(out, "phenotype", inputs=[result, data], overwrite=True) as tmp:
         write_phenotype(tmp, ph, images, title=f"seedmap phenotype: {result.name}")

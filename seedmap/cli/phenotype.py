@@ -21,27 +21,6 @@ def _config(config: Optional[Path], set_: Optional[List[str]]):
     return load_config(PhenotypeConfig, config, set_ or [])
 
 
-def _images(result: Path, data: Optional[Path], detector: Optional[str]):  # noqa: ANN202 - Images | None
-    """The images of the run: ``data`` (else the dataset the result records), searched with ``detector`` (else
-    the result's own, with its ``detect`` settings)."""
-    from seedmap.config import load_config
-    from seedmap.phenotype.run import SUMMARY, dataset_images
-    from seedmap.slam.config import SlamConfig
-
-    if data is None:
-        try:
-            data = Path(json.loads((result / SUMMARY).read_text(encoding="utf-8"))["dataset"])
-        except (OSError, ValueError, KeyError, TypeError):
-            return None
-        if not data.exists():
-            return None
-    cfg = load_config(SlamConfig, result / "config.yaml", []) if (result / "config.yaml").is_file() else SlamConfig()
-    name = detector or cfg.detector
-    if name is None or cfg.matcher not in (None, "seeds"):
-        raise InputError("the result was not mapped with seeds: give --detector to count seeds in its images", result)
-    return dataset_images(data, name, cfg.detect, cfg.dataset)
-
-
 DataOpt = typer.Option(None, "--data", help="The dataset the result was mapped from (default: the one it records); "
                                             "its images give each panicle's best view and seed count.")
 DetectorOpt = typer.Option(None, "--detector", "-d", help="Seed detector for the views (default: the result's).")
@@ -62,7 +41,7 @@ def phenotype_cmd(
     thumbnails of each panicle's best view, phenotype.html. `seedmap slam` writes the same into its result."""
     from seedmap.config import dump_config
     from seedmap.outputs import output_dir
-    from seedmap.phenotype.run import phenotype_result, write_phenotype
+    from seedmap.phenotype.run import phenotype_result, result_images, write_phenotype
     from seedmap.phenotype.table import read_plots
 
     cfg = _config(config, set_)
@@ -70,7 +49,7 @@ def phenotype_cmd(
     plot_list = read_plots(plots) if plots is not None else None
     if not result.is_dir():
         raise InputError("result folder not found", result)
-    images = _images(result, data, detector)
+    images = result_images(result, data, detector)
     ph = phenotype_result(result, cfg, images)
     with output_dir(out, "phenotype", inputs=[result, plots, config, data], overwrite=overwrite) as tmp:
         write_phenotype(tmp, ph, images, plot_list, title=f"seedmap phenotype: {result.name}",
@@ -95,13 +74,14 @@ def eval_phenotype_cmd(
     """Panicle detection precision/recall and the errors of position, height, length, width and seed count."""
     from seedmap.io.atomic import atomic_write_text
     from seedmap.phenotype.evaluate import evaluate_phenotype
+    from seedmap.phenotype.run import result_images
 
     if json_out is not None:
         check_output_file(json_out, [result, dataset, config], overwrite, lambda p: is_seedmap_json(p, "matched"),
                           what="JSON file")
     if not result.is_dir():
         raise InputError("result folder not found", result)
-    m = evaluate_phenotype(result, dataset, _config(config, set_), _images(result, dataset, detector))
+    m = evaluate_phenotype(result, dataset, _config(config, set_), result_images(result, dataset, detector))
     for k, v in m.items():
         if k != "per_panicle":
             typer.echo(f"{k:28s} {v:.4f}" if isinstance(v, float) else f"{k:28s} {v}")

@@ -64,8 +64,9 @@ def dataset_images(dataset: Path, detector: str, detect_config=None, dataset_con
     """:class:`Images` of a dataset seedmap reads, the seeds detected on demand by ``detector`` (once a frame:
     kept, 16 bytes a seed)."""
     from seedmap.detect import make_detector
+    from seedmap.io.options import DatasetOptions
 
-    ds = dataset_config.open(dataset) if dataset_config is not None else _open(dataset)
+    ds = (dataset_config or DatasetOptions()).open(dataset)
     det = make_detector(detector, dataset=Path(dataset), config=detect_config)
     found = FrameSeeds()
 
@@ -78,10 +79,28 @@ def dataset_images(dataset: Path, detector: str, detect_config=None, dataset_con
     return Images(ds.calib, np.arange(len(ds)), np.asarray(ds.timestamps, float), seeds_of, lambda f: ds[f].left)
 
 
-def _open(dataset: Path):  # noqa: ANN202 - a seedmap dataset
-    from seedmap.io import open_dataset
+def result_images(result: Path, data: Path | None = None, detector: str | None = None) -> Images | None:
+    """:class:`Images` of a ``seedmap slam`` result: ``data`` (else the dataset its :data:`SUMMARY` records; None
+    when that is gone), searched with ``detector`` (else the result's own, with the result's ``detect`` and
+    ``dataset`` settings)."""
+    from seedmap.config import load_config
+    from seedmap.slam.config import SlamConfig
 
-    return open_dataset(dataset)
+    result = Path(result)
+    if data is None:
+        try:
+            data = Path(json.loads((result / SUMMARY).read_text(encoding="utf-8"))["dataset"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+        if not data.exists():
+            return None
+    cfg = load_config(SlamConfig, result / "config.yaml", []) if (result / "config.yaml").is_file() else SlamConfig()
+    if detector is None:
+        if cfg.detector is None or cfg.matcher not in (None, "seeds"):
+            raise InputError("the result was not mapped with seeds: give --detector to count seeds in its images",
+                             result)
+        detector = cfg.detector
+    return dataset_images(data, detector, cfg.detect, cfg.dataset)
 
 
 @dataclass
