@@ -37,6 +37,8 @@ def _is_pose(key: int) -> bool:
 
 def _restricted(est: gtsam.Values, keys: gtsam.Values) -> gtsam.Values:
     """The variables of ``keys`` with their values from ``est`` (a rejected last frame left extra ones)."""
+    if est.size() == keys.size():
+        return est
     v = gtsam.Values()
     for key in keys.keys():
         v.insert(key, est.atPose3(key) if _is_pose(key) else est.atPoint3(key))
@@ -100,8 +102,6 @@ class Isam2:
             est = self.isam.calculateEstimate()
         except RuntimeError:  # an update that threw (the frame that lost the track) can leave no usable estimate
             return gtsam.Values(initial)
-        if est.size() == initial.size():
-            return est
         return _restricted(est, initial)
 
 
@@ -155,8 +155,6 @@ class FixedLag:
             est.insert(self.smoother.calculateEstimate())
         except RuntimeError:  # an update that threw can leave no usable estimate
             return gtsam.Values(initial)
-        if est.size() == initial.size():
-            return est
         return _restricted(est, initial)
 
 
