@@ -16,6 +16,8 @@ def page_paper(cmds: dict[str, str]) -> tuple[str, str] | None:
     recs = d["records"]
     parts = [f"Commit `{d.get('commit', '?')}`, {d.get('date', '?')}, {d.get('machine', 'machine not recorded')}.\n",
              f"```bash\n{d.get('command', cmds.get('paper.json', ''))}\n```\n",
+             *[f"Added by commit `{x.get('commit', '?')}`, {x.get('date', '?')}:\n\n```bash\n{x['command']}\n```\n"
+               for x in d.get("added", [])],
              "Per range: fraction of the range mapped (maximum distance mapped over the range length) / the same "
              "with the map validated against ground truth (position error within max(5 % of distance, 5 cm)). "
              "`published` is the paper's Table 1 (ORB-SLAM2, beside `orbslam3`: its Table 2).\n"]

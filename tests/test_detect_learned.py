@@ -225,3 +225,84 @@ def test_export_cli_and_onnx_detector(data, trained, tmp_path):
     assert det2.ort_det is None
     r = CliRunner().invoke(app, ["train", "export", str(tmp_path / "nothing")])
     assert isinstance(r.exception, InputError) and "weights not found" in str(r.exception)
+
+
+def _onnx_only(trained, tmp_path, score=0.0):
+    """A folder holding only the exported graphs of the tiny trained weights."""
+    from seedmap.detect.learned.export import export_weights
+
+    export_weights(trained, tmp_path, score_threshold=score)
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["detector.onnx", "segmenter.onnx"]
+    return tmp_path
+
+
+def test_onnx_only_weights_match_the_torch_pipeline(data, trained, tmp_path):
+    """A folder of exported graphs gives the torch pipeline's detections (its ONNX path), with onnxruntime only."""
+    import shutil
+
+    from seedmap.detect.learned.pipeline import OnnxLearnedDetector
+    from seedmap.io.seedmap_dataset import SeedmapDataset
+
+    folder = _onnx_only(trained, tmp_path / "onnx")
+    ref_dir = tmp_path / "ref"
+    ref_dir.mkdir()
+    for f in ("detector.safetensors", "segmenter.safetensors"):
+        shutil.copy(trained / f, ref_dir / f)
+    for f in ("detector.onnx", "segmenter.onnx"):
+        shutil.copy(folder / f, ref_dir / f)
+    over = ["learned.score_threshold=0.0"]
+    det = make_detector("frcnn-pix2pix", weights=folder, overrides=over)
+    ref = make_detector("frcnn-pix2pix", weights=ref_dir, overrides=over)
+    assert isinstance(det, OnnxLearnedDetector) and ref.ort_det is not None
+    img = SeedmapDataset(data)[0].left
+    a, b = det.detect(img), ref.detect(img)
+    assert len(a) == len(b) > 0
+    np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-4)
+    # both run the same graphs; session options differ (threads, graph optimisation), so a barely trained
+    # segmenter's borderline mask pixel may flip: centres agree on nearly every seed
+    assert (np.abs(a.keypoints - b.keypoints).max(axis=1) < 1e-3).mean() > 0.9
+    # the same folder, torch unimportable: still runs, and names the detector it was built as
+    code = (
+        "import sys; sys.modules['torch'] = None; sys.modules['torchvision'] = None\n"
+        "import numpy as np\n"
+        "from seedmap.detect import make_detector\n"
+        f"det = make_detector('frcnn-pix2pix', weights={str(folder)!r}, overrides=['learned.score_threshold=0.0'])\n"
+        "d = det.detect(np.full((96, 128, 3), 90, np.uint8))\n"
+        "print(det.name, d.ellipses.shape[1])\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["frcnn-pix2pix", "5"]
+
+
+def test_onnx_graph_that_cannot_give_the_config_is_refused(trained, tmp_path):
+    folder = _onnx_only(trained, tmp_path, score=0.5)
+    with pytest.raises(InputError, match="re-export"):
+        make_detector("frcnn-pix2pix", weights=folder, overrides=["learned.score_threshold=0.1"])
+    with pytest.raises(InputError, match="upscale"):
+        make_detector("frcnn-pix2pix", weights=folder, overrides=["learned.upscale=3.0"])
+    det = make_detector("frcnn-pix2pix", weights=folder)  # the default threshold 0.5 is what the graph keeps
+    assert det.name == "frcnn-pix2pix"
+
+
+def test_train_cli_reads_several_datasets_and_a_preset(data, tmp_path):
+    import yaml
+    from typer.testing import CliRunner
+
+    from seedmap.cli import app
+    from seedmap.detect.labels import ConcatSource, open_labelled_many
+
+    both = open_labelled_many([data, data])
+    assert isinstance(both, ConcatSource) and len(both) == 2 * len(SeedmapSource(data))
+    assert both[len(both) - 1].name == SeedmapSource(data)[len(SeedmapSource(data)) - 1].name
+    with pytest.raises(IndexError):
+        both[len(both)]
+    out = tmp_path / "w"
+    r = CliRunner().invoke(app, ["train", "segmenter", str(data), str(data), "--preset", "lite", "--out", str(out),
+                                 "--set", "steps=2", "--set", "batch_size=4", "--set", "checkpoint_every=2"])
+    assert r.exit_code == 0, r.output
+    cfg = yaml.safe_load((out / "segmenter_train_config.yaml").read_text())
+    assert cfg["steps"] == 2 and cfg["arch"]["ngf"] == 16 and cfg["threads"] == 1  # preset, then --set
+    r = CliRunner().invoke(app, ["train", "detector", str(data), "--preset", "huge", "--out", str(tmp_path / "x")])
+    assert isinstance(r.exception, SeedmapError) and "unknown detector preset 'huge'" in str(r.exception)
+    assert not (tmp_path / "x").exists()

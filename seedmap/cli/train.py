@@ -25,53 +25,63 @@ DEFAULT_THREADS = 1
 DEFAULT_REPLAY = 0.5
 
 
-def _train_common(kind: str, data: Path, out: Path, val: Optional[Path], images_root: Optional[Path],
-                  config: Optional[Path], set_: Optional[List[str]], resume: bool, overwrite: bool) -> None:
+def _train_common(kind: str, data: List[Path], out: Path, val: Optional[Path], images_root: Optional[Path],
+                  preset: Optional[str], config: Optional[Path], set_: Optional[List[str]], resume: bool,
+                  overwrite: bool) -> None:
     from seedmap.detect.learned import require_torch
 
     require_torch()
     from seedmap.config import load_config
-    from seedmap.detect.labels import open_labelled
+    from seedmap.detect.labels import open_labelled, open_labelled_many
     from seedmap.detect.learned import train as tr
+    from seedmap.detect.learned.presets import preset as preset_config
 
     cls = tr.DetectorTrainConfig if kind == "detector" else tr.SegmenterTrainConfig
-    cfg = load_config(cls, config, set_ or [])
-    src = open_labelled(data, images_root)
+    cfg = load_config(cls, config, set_ or [], base=preset_config(kind, preset))
+    src = open_labelled_many(data, images_root)
     vsrc = open_labelled(val, images_root) if val is not None else None
     fn = tr.train_detector if kind == "detector" else tr.train_segmenter
     p = fn(src, out, cfg, val_source=vsrc, resume=resume, overwrite=overwrite,
-           inputs=[data, val, images_root, config])
+           inputs=[*data, val, images_root, config])
     typer.echo(f"{kind} weights written to {p} (metrics: {out / (kind + '_metrics.jsonl')})")
+
+
+PresetOpt = typer.Option(None, "--preset", help="Training recipe: paper (full VGG16 / pix2pix, the defaults) or lite "
+                                                "(reduced width, CPU-trainable: frcnn-pix2pix-lite).")
 
 
 @train_app.command("detector")
 def train_detector_cmd(
-    data: Path = typer.Argument(..., help="Simulated dataset folder (GT masks) or a COCO .json with boxes."),
+    data: List[Path] = typer.Argument(..., help="Simulated dataset folders (GT masks) or COCO .json files with "
+                                               "boxes, read as one training set."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for detector.safetensors, checkpoint, metrics."),
     val: Optional[Path] = typer.Option(None, "--val", help="Held-out data (default: last val_fraction of DATA)."),
     images_root: Optional[Path] = typer.Option(None, "--images-root", help="COCO: folder of the image files."),
     resume: bool = typer.Option(False, "--resume", help="Continue from detector_checkpoint.safetensors."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Start over in a folder that holds weights."),
+    preset: Optional[str] = PresetOpt,
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
 ) -> None:
     """Train the Faster R-CNN (VGG16) seed detector (needs the learned extra, torch; a GPU for full training)."""
-    _train_common("detector", data, out, val, images_root, config, set_, resume, overwrite)
+    _train_common("detector", data, out, val, images_root, preset, config, set_, resume, overwrite)
 
 
 @train_app.command("segmenter")
 def train_segmenter_cmd(
-    data: Path = typer.Argument(..., help="Simulated dataset folder (GT masks) or a COCO .json with masks."),
+    data: List[Path] = typer.Argument(..., help="Simulated dataset folders (GT masks) or COCO .json files with "
+                                               "masks, read as one training set."),
     out: Path = typer.Option(..., "--out", "-o", help="Folder for segmenter.safetensors/.onnx, checkpoint, metrics."),
     val: Optional[Path] = typer.Option(None, "--val", help="Held-out data (default: last val_fraction of DATA)."),
     images_root: Optional[Path] = typer.Option(None, "--images-root", help="COCO: folder of the image files."),
     resume: bool = typer.Option(False, "--resume", help="Continue from segmenter_checkpoint.safetensors."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Start over in a folder that holds weights."),
+    preset: Optional[str] = PresetOpt,
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
 ) -> None:
     """Train the pix2pix seed segmenter (U-Net + PatchGAN) on box crops (needs the learned extra, torch)."""
-    _train_common("segmenter", data, out, val, images_root, config, set_, resume, overwrite)
+    _train_common("segmenter", data, out, val, images_root, preset, config, set_, resume, overwrite)
 
 
 @train_app.command("count-calibration")

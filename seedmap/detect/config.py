@@ -100,14 +100,16 @@ class CnnConfig(ConfigModel):
 class LearnedConfig(ConfigModel):
     """The paper's Faster R-CNN (VGG16) + pix2pix detector (seedmap.detect.learned)."""
 
-    #: the detector runs on the image upscaled by this factor (seeds are 4-8 px at 1434x1050)
-    upscale: float = 2.0
+    #: the detector runs on the image upscaled by this factor; None = the factor the weights were trained at
+    upscale: Union[float, None] = None
     #: Faster R-CNN box score a detection needs
     score_threshold: float = 0.5
     #: box non-maximum suppression IoU
     nms_iou: float = 0.3
     #: at most this many detections per image
     max_detections: int = 3000
+    #: onnxruntime intra-op threads of each network (0 = all cores)
+    threads: int = 1
 
 
 class DetectConfig(ConfigModel):

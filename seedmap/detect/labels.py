@@ -9,6 +9,7 @@ string, the LEB128-like encoding of the COCO API) — decoded here, pycocotools 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -363,6 +364,30 @@ def open_labelled(path: str | Path, images_root: str | Path | None = None, frame
     if not p.exists():
         raise InputError("training data not found", p)
     return SeedmapSource(p, frames=frames)
+
+
+class ConcatSource:
+    """Several labelled-image sources read as one, in order (their images one after the other)."""
+
+    def __init__(self, sources: Sequence) -> None:
+        self.sources = list(sources)
+        self.path = getattr(self.sources[0], "path", None) if self.sources else None
+        self.starts = np.cumsum([0] + [len(s) for s in self.sources])
+
+    def __len__(self) -> int:
+        return int(self.starts[-1])
+
+    def __getitem__(self, k: int) -> LabelledImage:
+        if not 0 <= k < len(self):
+            raise IndexError(k)
+        j = int(np.searchsorted(self.starts, k, side="right")) - 1
+        return self.sources[j][k - int(self.starts[j])]
+
+
+def open_labelled_many(paths: Sequence[str | Path], images_root: str | Path | None = None):
+    """:func:`open_labelled` of each path; one source as is, several as a :class:`ConcatSource`."""
+    sources = [open_labelled(p, images_root) for p in paths]
+    return sources[0] if len(sources) == 1 else ConcatSource(sources)
 
 
 def read_coco_boxes(path: str | Path) -> list[dict]:

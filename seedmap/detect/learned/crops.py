@@ -11,6 +11,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+#: segmenter crop padding on each side, as a fraction of the box's larger side
+CROP_PAD = 0.5
+
 
 def crop_windows(boxes: np.ndarray, pad: float) -> np.ndarray:
     """``(N, 3)`` crop squares: left edge, top edge (continuous px, pixel k spans [k-.5, k+.5)), side."""

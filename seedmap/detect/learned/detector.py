@@ -18,23 +18,17 @@ import torch
 
 from seedmap.detect.base import Detector, check_image
 from seedmap.detect.config import LearnedConfig
-from seedmap.detect.ellipse import fit_ellipse_mask
-from seedmap.detect.learned.crops import crop_to_full, extract_crops
 from seedmap.detect.learned.models import (
-    CROP_PAD,
     DetectorArch,
     SegmenterArch,
     UNetGenerator,
     build_frcnn,
     set_input_scale,
 )
+from seedmap.detect.learned.pipeline import boxes_to_detections
 from seedmap.detect.learned.weights import load_into, read_weights
 from seedmap.errors import InputError, SeedmapError
 from seedmap.records import Detections
-
-#: the ellipse fitter of a mask (cv2.fitEllipse on its contour, the paper's)
-ELLIPSE = "contour"
-
 
 def find_weight_files(weights: str | Path | None) -> tuple[Path, Path]:
     """``(detector.safetensors, segmenter.safetensors)`` from a file or folder (or shipped defaults)."""
@@ -44,7 +38,8 @@ def find_weight_files(weights: str | Path | None) -> tuple[Path, Path]:
         p = default_weights_path().parent
         if not (p / "detector.safetensors").is_file():
             raise SeedmapError("no trained weights for frcnn-pix2pix: train them with `seedmap train detector` and "
-                               "`seedmap train segmenter` and pass --weights FOLDER, or use --detector fast")
+                               "`seedmap train segmenter` and pass --weights FOLDER, or use --detector "
+                               "frcnn-pix2pix-lite (shipped) or fast")
     else:
         p = Path(weights)
         if not p.exists():
@@ -69,6 +64,7 @@ class LearnedDetector(Detector):
         self.det_arch = det_arch
         self.gen = gen.eval()
         self.seg_arch = seg_arch
+        self.crop_size = seg_arch.crop_size
         self.det.roi_heads.score_thresh = self.cfg.score_threshold
         self.det.roi_heads.nms_thresh = self.cfg.nms_iou
         self.det.roi_heads.detections_per_img = self.cfg.max_detections
@@ -87,7 +83,8 @@ class LearnedDetector(Detector):
             # the graph's own thresholds must not remove what the config asks to keep
             if (post.get("score_threshold", 1.0) <= self.cfg.score_threshold
                     and abs(post.get("nms_iou", -1.0) - self.cfg.nms_iou) < 1e-9
-                    and post.get("max_detections", 0) >= self.cfg.max_detections):
+                    and post.get("max_detections", 0) >= self.cfg.max_detections
+                    and self.cfg.upscale in (None, det_arch.upscale)):
                 import onnxruntime as ort
 
                 so = ort.SessionOptions()
@@ -114,7 +111,7 @@ class LearnedDetector(Detector):
         """Faster R-CNN boxes (x0, y0, x1, y1) and scores on the upscaled image."""
         img = check_image(image)
         h, w = img.shape[:2]
-        set_input_scale(self.det, h, w, self.cfg.upscale)
+        set_input_scale(self.det, h, w, self.det_arch.upscale if self.cfg.upscale is None else self.cfg.upscale)
         x = torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1).float().div_(255.0)
         if self.ort_det is not None:
             b, s = self.ort_det.run(None, {"image": x.numpy()})
@@ -139,22 +136,4 @@ class LearnedDetector(Detector):
 
     def detect(self, image: np.ndarray) -> Detections:
         boxes, scores = self.boxes(image)
-        if len(boxes) == 0:
-            return Detections()
-        n = self.seg_arch.crop_size
-        crops, wins, _ = extract_crops(image, boxes, n, CROP_PAD)
-        masks = self.masks(crops)
-        ell = np.zeros((len(boxes), 5))
-        for k in range(len(boxes)):
-            e = fit_ellipse_mask(masks[k], ELLIPSE)
-            if e is None:
-                b = boxes[k]
-                ell[k] = [(b[0] + b[2]) / 2 - 0.5, (b[1] + b[3]) / 2 - 0.5, b[2] - b[0], b[3] - b[1], 0.0]
-                continue
-            a = n / wins[k, 2]
-            ell[k, :2] = crop_to_full(e[:2], wins[k], n)
-            ell[k, 2:4] = e[2:4] / a
-            ell[k, 4] = e[4]
-            if ell[k, 2] < ell[k, 3]:
-                ell[k, 2], ell[k, 3] = ell[k, 3], ell[k, 2]
-        return Detections(boxes=boxes, scores=scores, ellipses=ell)
+        return boxes_to_detections(image, boxes, scores, self.masks, self.crop_size)

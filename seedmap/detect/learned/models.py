@@ -28,8 +28,6 @@ VGG16_CFG: list = [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512
 ASPECT_RATIOS = (0.5, 1.0, 2.0)
 #: RoIAlign output size
 ROI_OUTPUT = 7
-#: segmenter crop padding on each side, as a fraction of the box's larger side
-CROP_PAD = 0.5
 
 
 class DetectorArch(ConfigModel):

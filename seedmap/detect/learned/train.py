@@ -25,9 +25,8 @@ from torch import nn
 from seedmap import outputs
 from seedmap.config import ConfigModel, config_to_yaml
 from seedmap.detect.labels import LabelledImage
-from seedmap.detect.learned.crops import crop_to_full, extract_crops
+from seedmap.detect.learned.crops import CROP_PAD, crop_to_full, extract_crops
 from seedmap.detect.learned.models import (
-    CROP_PAD,
     DetectorArch,
     PatchDiscriminator,
     SegmenterArch,
@@ -76,6 +75,8 @@ class DetectorTrainConfig(ConfigModel):
     lr: float = 1e-4
     #: training crops (px at the source resolution); the detector sees them upscaled by arch.upscale
     crop: int = 256
+    #: proposals per image sampled for the box head's loss (torchvision's default 512; a quarter positive)
+    box_batch: int = 512
     #: held-out share of the images when no --val source is given (the last ones)
     val_fraction: float = 0.2
     #: validate and write a resumable checkpoint every this many steps (and at the last)
@@ -265,6 +266,7 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
     run, tr_idx, va_idx, val_source = _start_run("detector", cfg, source, val_source, out, resume, overwrite,
                                                       inputs)
     model = build_frcnn(cfg.arch)
+    model.roi_heads.fg_bg_sampler.batch_size_per_image = cfg.box_batch
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=DET_WEIGHT_DECAY)
     start = 0
