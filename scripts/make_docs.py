@@ -21,6 +21,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from docs_format import GENERATED, ROOT, commands, fixed, load, method_label, num, pct, table  # noqa: E402
+from docs_learned import glance_learned, page_learned  # noqa: E402
 from docs_pages import (page_batch, page_demo, page_detect, page_io, page_paper, page_phenotype,  # noqa: E402
                         page_photos, page_recon, page_sim, page_slam, page_sweep)
 
@@ -30,6 +31,7 @@ PAGES: dict[str, Callable[[dict[str, str]], tuple[str, str] | None]] = {
     "sweep.md": page_sweep,
     "phenotype.md": page_phenotype,
     "detect.md": page_detect,
+    "learned.md": page_learned,
     "photos.md": page_photos,
     "slam.md": page_slam,
     "recon.md": page_recon,
@@ -91,6 +93,8 @@ def glance() -> str:
         rows.append([f"seed detection, `fast`, {len(d['datasets'])} held-out ranges",
                      f"F1 {2 * p * r / (p + r):.3f} pooled ({min(f1s):.3f}–{max(f1s):.3f} per range); keypoint "
                      f"error median {min(kps):.2f}–{max(kps):.2f} px", "[detect](docs/results/detect.md)"])
+    if row := glance_learned():
+        rows.append(row)
     if d := load("photos.json"):
         h, ft = d["sets"].get("heldout", {}).get("default"), d.get("finetune")
         if h:

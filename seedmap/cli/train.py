@@ -38,8 +38,9 @@ def _train_common(kind: str, data: List[Path], out: Path, val: Optional[Path], i
 
     cls = tr.DetectorTrainConfig if kind == "detector" else tr.SegmenterTrainConfig
     cfg = load_config(cls, config, set_ or [], base=preset_config(kind, preset))
-    src = open_labelled_many(data, images_root)
-    vsrc = open_labelled(val, images_root) if val is not None else None
+    area = getattr(cfg, "min_gt_area", 3)
+    src = open_labelled_many(data, images_root, min_area_px=area)
+    vsrc = open_labelled(val, images_root, min_area_px=area) if val is not None else None
     fn = tr.train_detector if kind == "detector" else tr.train_segmenter
     p = fn(src, out, cfg, val_source=vsrc, resume=resume, overwrite=overwrite,
            inputs=[*data, val, images_root, config])

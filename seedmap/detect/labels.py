@@ -356,14 +356,16 @@ class SeedmapSource:
         return LabelledImage(img, inst.boxes[keep].astype(np.float64), lut[raw], f"{cam}/{i:06d}.png")
 
 
-def open_labelled(path: str | Path, images_root: str | Path | None = None, frames: list[int] | None = None):
-    """A seedmap dataset folder or a COCO ``.json`` file -> a labelled-image source."""
+def open_labelled(path: str | Path, images_root: str | Path | None = None, frames: list[int] | None = None,
+                  min_area_px: int = 3):
+    """A seedmap dataset folder (GT instances of at least ``min_area_px`` visible pixels) or a COCO ``.json`` file
+    -> a labelled-image source."""
     p = Path(path)
     if p.suffix.lower() == ".json":
         return CocoSource(p, images_root)
     if not p.exists():
         raise InputError("training data not found", p)
-    return SeedmapSource(p, frames=frames)
+    return SeedmapSource(p, min_area_px=min_area_px, frames=frames)
 
 
 class ConcatSource:
@@ -384,9 +386,9 @@ class ConcatSource:
         return self.sources[j][k - int(self.starts[j])]
 
 
-def open_labelled_many(paths: Sequence[str | Path], images_root: str | Path | None = None):
+def open_labelled_many(paths: Sequence[str | Path], images_root: str | Path | None = None, min_area_px: int = 3):
     """:func:`open_labelled` of each path; one source as is, several as a :class:`ConcatSource`."""
-    sources = [open_labelled(p, images_root) for p in paths]
+    sources = [open_labelled(p, images_root, min_area_px=min_area_px) for p in paths]
     return sources[0] if len(sources) == 1 else ConcatSource(sources)
 
 

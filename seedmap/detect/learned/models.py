@@ -1,6 +1,8 @@
 """The paper's networks: Faster R-CNN with a VGG16 backbone, and pix2pix (U-Net + PatchGAN).
 
-Seeds are only 4–8 px across at the default 1434x1050 resolution, so the detector
+Seeds are only 4–8 px across at the default 1434x1050 resolution, so the detector (the full-size ``paper``
+preset; ``lite`` keeps three VGG16 blocks, stride 4, at the image's own scale: the same 4-px anchor spacing for a
+fifth of the convolutions)
 
 * cuts VGG16 after ``conv4_3`` (stride 8, 512 channels) instead of the usual stride-16 ``conv5_3``
   — one feature cell then spans about one seed;
@@ -19,9 +21,13 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from pydantic import Field
+
 from seedmap.config import ConfigModel
 
 VGG16_CFG: list = [64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512]  # up to conv4_3 (stride 8)
+#: where each kept block count cuts VGG16_CFG: 3 blocks = conv3_3 (stride 4), 4 = conv4_3 (stride 8)
+VGG16_CUTS = {3: 9, 4: 13}
 
 
 #: anchor aspect ratios of the region proposals
@@ -35,6 +41,10 @@ class DetectorArch(ConfigModel):
 
     #: scales every VGG16 channel count (1.0 = torchvision's vgg16)
     width: float = 1.0
+    #: VGG16 blocks kept: 4 = up to conv4_3 (stride 8), 3 = up to conv3_3 (stride 4: one cell per seed at scale 1)
+    blocks: int = Field(4, ge=3, le=4)
+    #: batch normalisation after every VGG16 convolution (torchvision's vgg16_bn layout; folded away in ONNX)
+    batch_norm: bool = False
     #: anchor sizes (px on the upscaled image)
     anchor_sizes: list[float] = [8.0, 12.0, 16.0, 24.0]
     #: the detector sees the image upscaled by this factor
@@ -58,16 +68,17 @@ class SegmenterArch(ConfigModel):
     ndf: int = 32
 
 
-def vgg16_stride8(width: float = 1.0) -> nn.Sequential:
-    """VGG16 ``conv1_1 .. relu4_3`` (stride 8). ``width == 1`` is torchvision's own module."""
-    if width == 1.0:
+def vgg16_trunk(width: float = 1.0, blocks: int = 4, batch_norm: bool = False) -> nn.Sequential:
+    """VGG16 ``conv1_1 .. relu4_3`` (stride 8; ``blocks=3``: ``.. relu3_3``, stride 4), with batch normalisation
+    after each convolution when asked. ``width == 1``, four blocks and no batch norm is torchvision's own module."""
+    if width == 1.0 and blocks == 4 and not batch_norm:
         from torchvision.models import vgg16
 
         return vgg16(weights=None).features[:23]
     from torchvision.models.vgg import make_layers
 
-    cfg = [c if c == "M" else max(4, int(round(c * width))) for c in VGG16_CFG]
-    return make_layers(cfg, batch_norm=False)
+    cfg = [c if c == "M" else max(4, int(round(c * width))) for c in VGG16_CFG[:VGG16_CUTS[blocks]]]
+    return make_layers(cfg, batch_norm=batch_norm)
 
 
 def build_frcnn(arch: DetectorArch) -> nn.Module:
@@ -76,7 +87,7 @@ def build_frcnn(arch: DetectorArch) -> nn.Module:
     from torchvision.models.detection.anchor_utils import AnchorGenerator
     from torchvision.ops import MultiScaleRoIAlign
 
-    backbone = vgg16_stride8(arch.width)
+    backbone = vgg16_trunk(arch.width, arch.blocks, arch.batch_norm)
     backbone.out_channels = [m for m in backbone if isinstance(m, nn.Conv2d)][-1].out_channels
     anchors = AnchorGenerator(sizes=(tuple(arch.anchor_sizes),), aspect_ratios=(ASPECT_RATIOS,))
     roi = MultiScaleRoIAlign(featmap_names=["0"], output_size=ROI_OUTPUT, sampling_ratio=2)

@@ -77,6 +77,15 @@ class DetectorTrainConfig(ConfigModel):
     crop: int = 256
     #: proposals per image sampled for the box head's loss (torchvision's default 512; a quarter positive)
     box_batch: int = 512
+    #: simulated datasets: seeds with fewer visible pixels are no training targets (10: the detectable seed at
+    #: 1434 px width, what the scorer counts; slivers behind other seeds are half of all instances)
+    min_gt_area: int = 3
+    #: proposals whose best IoU with a seed lies in [box_bg_iou, 0.5) are left out of the box head's loss (0.5: none,
+    #: torchvision's default); a tiny seed's box 1 px off is not background
+    box_bg_iou: float = 0.5
+    #: region proposals per image before / after the RPN's NMS while training (inference: the architecture's)
+    rpn_pre_nms: int = 6000
+    rpn_post_nms: int = 4000
     #: held-out share of the images when no --val source is given (the last ones)
     val_fraction: float = 0.2
     #: validate and write a resumable checkpoint every this many steps (and at the last)
@@ -267,6 +276,11 @@ def train_detector(source, out: Path, cfg: DetectorTrainConfig | None = None, va
                                                       inputs)
     model = build_frcnn(cfg.arch)
     model.roi_heads.fg_bg_sampler.batch_size_per_image = cfg.box_batch
+    from torchvision.models.detection._utils import Matcher
+
+    model.roi_heads.proposal_matcher = Matcher(0.5, cfg.box_bg_iou, allow_low_quality_matches=False)
+    model.rpn._pre_nms_top_n["training"] = cfg.rpn_pre_nms
+    model.rpn._post_nms_top_n["training"] = cfg.rpn_post_nms
     params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=DET_WEIGHT_DECAY)
     start = 0
