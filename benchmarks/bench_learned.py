@@ -24,7 +24,7 @@ import numpy as np
 from seedmap.progress import track
 
 #: candidate score thresholds of the learned detector (chosen on --val)
-THRESHOLDS = (0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+THRESHOLDS = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
 #: the lowest threshold the learned detector runs at (a higher one filters its detections by score)
 RUN_THRESHOLD = min(THRESHOLDS)
 
@@ -34,7 +34,7 @@ def run_fast(ds, frames: list[int]) -> tuple[dict, list[float], list[float]]:  #
     from seedmap.detect import make_detector
 
     det = make_detector("fast")
-    det.detect(ds[frames[0]].left)  # warm-up: sessions and compiled kernels are ready before timing
+    det.detect(ds[frames[0]].left)  # warm-up: the networks are loaded and the kernels compiled before timing
     out, wall, cpu = {}, [], []
     for i in track(frames, f"fast {Path(ds.root).name}", "frame"):
         fr = ds[i]

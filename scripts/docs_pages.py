@@ -117,9 +117,9 @@ def _sweep_detectors(methods: Sequence[str]) -> str:
                          if d == "gt" else "") for d in dets]
     text = "Seeds ran with the detector" + ("s " + ", ".join(named[:-1]) + " and " + named[-1] if len(named) > 1
                                             else " " + "".join(named)) + "."
-    if "frcnn-pix2pix" not in dets:
-        text += (" The learned detector `frcnn-pix2pix` is not swept: seedmap ships no trained weights for it "
-                 "(no `detector.safetensors` in `seedmap/detect/weights/`), so no benchmark runs it.")
+    if not any(d.startswith("frcnn-pix2pix") for d in dets):
+        text += (" The paper's detector is not in this sweep: `frcnn-pix2pix-lite` shipped after it ran, and "
+                 "`frcnn-pix2pix` runs only with the user's own weights.")
     return text + " Plots: drawn by the sweep from the same summary, copied by `scripts/sweep_json.py`.\n"
 
 

@@ -282,7 +282,12 @@ def test_onnx_graph_that_cannot_give_the_config_is_refused(trained, tmp_path):
     with pytest.raises(InputError, match="upscale"):
         make_detector("frcnn-pix2pix", weights=folder, overrides=["learned.upscale=3.0"])
     det = make_detector("frcnn-pix2pix", weights=folder)  # the default threshold 0.5 is what the graph keeps
-    assert det.name == "frcnn-pix2pix"
+    assert det.name == "frcnn-pix2pix" and det.cfg.score_threshold == 0.5
+    # a threshold recorded beside the weights is their default; the settings still win
+    (folder / "recipe.json").write_text(json.dumps({"score_threshold": 0.7}))
+    assert make_detector("frcnn-pix2pix", weights=folder).cfg.score_threshold == 0.7
+    det = make_detector("frcnn-pix2pix", weights=folder, overrides=["learned.score_threshold=0.6"])
+    assert det.cfg.score_threshold == 0.6
 
 
 def test_train_cli_reads_several_datasets_and_a_preset(data, tmp_path):

@@ -97,13 +97,18 @@ class CnnConfig(ConfigModel):
         return f
 
 
+#: the learned detector's box score threshold when neither the settings nor its weights give one
+DEFAULT_SCORE_THRESHOLD = 0.5
+
+
 class LearnedConfig(ConfigModel):
     """The paper's Faster R-CNN (VGG16) + pix2pix detector (seedmap.detect.learned)."""
 
     #: the detector runs on the image upscaled by this factor; None = the factor the weights were trained at
     upscale: Union[float, None] = None
-    #: Faster R-CNN box score a detection needs
-    score_threshold: float = 0.5
+    #: Faster R-CNN box score a detection needs; None = the weights' own (``score_threshold`` of the recipe.json
+    #: beside them, chosen on validation data), else DEFAULT_SCORE_THRESHOLD
+    score_threshold: Union[float, None] = None
     #: box non-maximum suppression IoU
     nms_iou: float = 0.3
     #: at most this many detections per image

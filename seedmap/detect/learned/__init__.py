@@ -38,10 +38,30 @@ def _has_torch() -> bool:
     return True
 
 
+def recommended_threshold(folder: Path) -> float:
+    """The score threshold recorded beside a weights folder's files (``recipe.json``), else the default."""
+    import json
+
+    from seedmap.detect.config import DEFAULT_SCORE_THRESHOLD
+
+    try:
+        t = json.loads((folder / "recipe.json").read_text())["score_threshold"]
+        return float(t) if 0.0 <= float(t) <= 1.0 else DEFAULT_SCORE_THRESHOLD
+    except (OSError, ValueError, KeyError, TypeError):
+        return DEFAULT_SCORE_THRESHOLD
+
+
 def _build(weights, config, name: str):  # noqa: ANN001, ANN202 - registry factory signature
+    from seedmap.detect.config import LearnedConfig
     from seedmap.detect.learned.pipeline import OnnxLearnedDetector, onnx_files
 
-    cfg = config.learned if config is not None else None
+    cfg = config.learned if config is not None else LearnedConfig()
+    if cfg.score_threshold is None:
+        from seedmap.detect.config import DEFAULT_SCORE_THRESHOLD
+
+        p = Path(weights) if weights is not None else None
+        thr = recommended_threshold(p if p.is_dir() else p.parent) if p is not None else DEFAULT_SCORE_THRESHOLD
+        cfg = cfg.model_copy(update={"score_threshold": thr})
     if weights is not None:
         p = Path(weights)
         folder = p if p.is_dir() else p.parent

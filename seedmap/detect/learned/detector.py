@@ -60,6 +60,10 @@ class LearnedDetector(Detector):
                  seg_arch: SegmenterArch, config: LearnedConfig | None = None, onnx_path: Path | None = None,
                  det_onnx_path: Path | None = None) -> None:
         self.cfg = config or LearnedConfig()
+        if self.cfg.score_threshold is None:
+            from seedmap.detect.config import DEFAULT_SCORE_THRESHOLD
+
+            self.cfg = self.cfg.model_copy(update={"score_threshold": DEFAULT_SCORE_THRESHOLD})
         self.det = det_model.eval()
         self.det_arch = det_arch
         self.gen = gen.eval()

@@ -76,6 +76,10 @@ class OnnxLearnedDetector(Detector):
 
         self.name = name
         self.cfg = config or LearnedConfig()
+        if self.cfg.score_threshold is None:
+            from seedmap.detect.config import DEFAULT_SCORE_THRESHOLD
+
+            self.cfg = self.cfg.model_copy(update={"score_threshold": DEFAULT_SCORE_THRESHOLD})
         self.det = load_session(det_onnx, self.cfg.threads, kind="detector")
         self.seg = load_session(seg_onnx, self.cfg.threads, kind="segmenter")
         self.det_arch = _meta_json(self.det, "arch", det_onnx)
