@@ -113,8 +113,6 @@ class LearnedConfig(ConfigModel):
     nms_iou: float = 0.3
     #: at most this many detections per image
     max_detections: int = 3000
-    #: onnxruntime intra-op threads of each network (0 = all cores)
-    threads: int = 1
 
 
 class DetectConfig(ConfigModel):

@@ -21,6 +21,8 @@ from seedmap.detect.learned.crops import CROP_PAD, crop_to_full, extract_crops
 from seedmap.errors import InputError
 from seedmap.records import Detections
 
+#: onnxruntime intra-op threads of each network (one per detector, as ``fast``'s default)
+ONNX_THREADS = 1
 #: the ellipse fitter of a mask (cv2.fitEllipse on its contour, the paper's)
 ELLIPSE = "contour"
 
@@ -80,8 +82,8 @@ class OnnxLearnedDetector(Detector):
             from seedmap.detect.config import DEFAULT_SCORE_THRESHOLD
 
             self.cfg = self.cfg.model_copy(update={"score_threshold": DEFAULT_SCORE_THRESHOLD})
-        self.det = load_session(det_onnx, self.cfg.threads, kind="detector")
-        self.seg = load_session(seg_onnx, self.cfg.threads, kind="segmenter")
+        self.det = load_session(det_onnx, ONNX_THREADS, kind="detector")
+        self.seg = load_session(seg_onnx, ONNX_THREADS, kind="segmenter")
         self.det_arch = _meta_json(self.det, "arch", det_onnx)
         self.seg_arch = _meta_json(self.seg, "arch", seg_onnx)
         post = _meta_json(self.det, "post", det_onnx)
