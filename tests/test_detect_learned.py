@@ -258,7 +258,7 @@ def test_onnx_only_weights_match_the_torch_pipeline(data, trained, tmp_path):
     a, b = det.detect(img), ref.detect(img)
     assert len(a) == len(b) > 0
     np.testing.assert_allclose(a.boxes, b.boxes, atol=1e-4)
-    # both run the same graphs; session options differ (threads, graph optimisation), so a barely trained
+    # both run the same graphs; onnxruntime's options differ (threads, graph optimisation), so a barely trained
     # segmenter's borderline mask pixel may flip: centres agree on nearly every seed
     assert (np.abs(a.keypoints - b.keypoints).max(axis=1) < 1e-3).mean() > 0.9
     # the same folder, torch unimportable: still runs, and names the detector it was built as

@@ -25,7 +25,7 @@ from seedmap.detect.learned.models import (
     build_frcnn,
     set_input_scale,
 )
-from seedmap.detect.learned.pipeline import boxes_to_detections
+from seedmap.detect.learned.pipeline import boxes_to_detections, graph_gives
 from seedmap.detect.learned.weights import load_into, read_weights
 from seedmap.errors import InputError, SeedmapError
 from seedmap.records import Detections
@@ -84,11 +84,7 @@ class LearnedDetector(Detector):
             from seedmap.detect.learned.export import onnx_post_params
 
             post = onnx_post_params(det_onnx_path)
-            # the graph's own thresholds must not remove what the config asks to keep
-            if (post.get("score_threshold", 1.0) <= self.cfg.score_threshold
-                    and abs(post.get("nms_iou", -1.0) - self.cfg.nms_iou) < 1e-9
-                    and post.get("max_detections", 0) >= self.cfg.max_detections
-                    and self.cfg.upscale in (None, det_arch.upscale)):
+            if graph_gives(post, self.cfg) and self.cfg.upscale in (None, det_arch.upscale):
                 import onnxruntime as ort
 
                 so = ort.SessionOptions()

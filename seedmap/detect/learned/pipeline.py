@@ -52,6 +52,14 @@ def boxes_to_detections(image: np.ndarray, boxes: np.ndarray, scores: np.ndarray
     return Detections(boxes=boxes, scores=scores, ellipses=ell)
 
 
+def graph_gives(post: dict, cfg: LearnedConfig) -> bool:
+    """Whether a detector graph's baked-in post-processing (``post``: score threshold, NMS IoU, box cap) keeps
+    everything the settings ``cfg`` ask for."""
+    return (post.get("score_threshold", 1.0) <= cfg.score_threshold
+            and abs(post.get("nms_iou", -1.0) - cfg.nms_iou) < 1e-9
+            and post.get("max_detections", 0) >= cfg.max_detections)
+
+
 def onnx_files(folder: Path) -> tuple[Path, Path] | None:
     """``(detector.onnx, segmenter.onnx)`` in ``folder`` when both exist, else None."""
     det, seg = folder / "detector.onnx", folder / "segmenter.onnx"
@@ -91,10 +99,7 @@ class OnnxLearnedDetector(Detector):
         if self.cfg.upscale is not None and abs(self.cfg.upscale - up) > 1e-9:
             raise InputError(f"the detector graph runs at upscale {up:g}; learned.upscale={self.cfg.upscale:g} needs "
                              "the safetensors weights and torch", det_onnx)
-        # the graph's own post-processing must not remove what the config asks to keep
-        if (post.get("score_threshold", 1.0) > self.cfg.score_threshold
-                or abs(post.get("nms_iou", -1.0) - self.cfg.nms_iou) > 1e-9
-                or post.get("max_detections", 0) < self.cfg.max_detections):
+        if not graph_gives(post, self.cfg):
             raise InputError(
                 f"the detector graph was exported with score >= {post.get('score_threshold')}, NMS IoU "
                 f"{post.get('nms_iou')}, at most {post.get('max_detections')} boxes, which cannot give "
