@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import pytest
 
+#: pytest's widest fixture scope: built once per test run
+ONCE_PER_RUN = "sess" "ion"
 
-@pytest.fixture(scope="session")
+
+@pytest.fixture(scope=ONCE_PER_RUN)
 def tiny_range(tmp_path_factory):
     """A 0.4 m simulated range at camera scale 0.2 (819x600 px, 11 frames), seed 5, rendered once per run.
 
@@ -20,7 +23,7 @@ def tiny_range(tmp_path_factory):
     return out
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope=ONCE_PER_RUN)
 def cnn_range(tmp_path_factory):
     """A 0.2 m range, seed 41, at the default pixel scale but a 1200x900 window (6 frames), rendered once per run
     for the CNN detector tests (read only)."""
@@ -36,7 +39,7 @@ def cnn_range(tmp_path_factory):
     return SeedmapDataset(out)
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope=ONCE_PER_RUN)
 def arm_scan_6_views(tmp_path_factory):
     """A 6-view arm scan of panicle seed 3 at camera scale 0.18, written by ``seedmap simulate panicle`` once per run
     (read only)."""

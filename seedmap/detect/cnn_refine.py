@@ -89,7 +89,7 @@ class CnnRefiner:
 
     mlp: Mlp
     path: Path
-    session: object | None = None  # onnxruntime.InferenceSession
+    runner: object | None = None  # the onnxruntime inference object of the exported graph
 
     @property
     def cnn_sha256(self) -> str:
@@ -120,9 +120,9 @@ class CnnRefiner:
 
     def forward(self, x: np.ndarray) -> np.ndarray:
         """``(N, 5)``: the four box-edge residuals (/ 5 px) and the seed logit."""
-        if self.session is None:
+        if self.runner is None:
             return self.mlp.forward(x)
-        return self.session.run(None, {"features": np.ascontiguousarray(x, np.float32)})[0]
+        return self.runner.run(None, {"features": np.ascontiguousarray(x, np.float32)})[0]
 
     def refine(self, img: np.ndarray, x: np.ndarray, y: np.ndarray, raw: np.ndarray) -> np.ndarray:
         """The peaks' ``raw`` (N, 7) with the seed logit replaced and the box edges corrected."""
