@@ -122,3 +122,37 @@ def test_replay_fraction_sets_the_share_of_rehearsal_crops_beside_arm_scans():
     ims[0].arm = False
     assert image_weights(ims, None, 0.0) is None
 
+
+
+def test_off_scale_crops_show_seeds_as_background():
+    """An off-scale crop (seeds far smaller or larger than the network's size) has no peak, no box target and no
+    ignored pixel, although the seed is in it; an ordinary crop of the same seed has its peak."""
+    im = _one_seed_image(w=12, h=10)
+    off = CropSpec(off_scale_prob=1.0, off_scale_range=((0.45, 0.45), (2.5, 2.5)))
+    for seed in range(6):
+        X, H, R, M, IG = crop_batch([im], 1, 96, np.random.default_rng(seed), seed_fraction=1.0, spec=off)
+        assert X[0].max() > 0.4  # the seed is in the crop ...
+        assert H.max() == 0 and R.max() == 0 and M.max() == 0 and IG.max() == 0  # ... and is background
+    assert max(crop_batch([im], 1, 96, np.random.default_rng(s), seed_fraction=1.0, spec=CropSpec())[1].max()
+               for s in range(6)) == pytest.approx(1.0)
+
+
+def test_context_stage_keeps_the_output_grid_and_round_trips_through_onnx(tmp_path):
+    """With the quarter-resolution context stage the network still gives 7 channels per input pixel (odd sizes too),
+    its exported ONNX gives torch's output, and its channels are read back from the weights."""
+    torch = pytest.importorskip("torch")
+    from seedmap.detect.cnn_net import build_net, net_channels
+    from seedmap.detect.runtime import load_session
+    from seedmap.detect.train_cnn import export_onnx, onnx_weights
+
+    torch.manual_seed(0)
+    net = build_net(6, 10, 12).eval()
+    x = torch.rand(2, 3, 37, 50)
+    with torch.no_grad():
+        y = net(x).numpy()
+    assert y.shape == (2, 7, 37, 50)
+    p = export_onnx(net, tmp_path / "n.onnx", {"seed_px": 8.0})
+    got = load_session(p, 1).run(None, {"image": x.numpy()})[0]
+    assert np.allclose(got, y, atol=1e-4)
+    assert net_channels(onnx_weights(p)) == (6, 10, 12)
+    assert net_channels(onnx_weights(tmp_path / "n.onnx")) != (6, 10, 0)

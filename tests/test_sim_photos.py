@@ -74,6 +74,7 @@ def test_heldout_split_draws_only_unseen_surfaces():
     held = {k for k, (s, _) in BACKGROUNDS.items() if s == "heldout"}
     train = {k for k, (s, _) in BACKGROUNDS.items() if s == "train"}
     assert held and train and not held & train
+    assert {"sieve", "tablecloth", "burlap", "gravel"} <= held and {"pebbles", "mottled", "cloth"} <= train
     assert {k for k, v in VARIETIES.items() if v[0] == "heldout"}
     assert {k for k, s in LIGHTS.items() if s == "heldout"}
     seen = set()
@@ -117,3 +118,12 @@ def test_cli_refuses_existing_folder_and_bad_config(photos, tmp_path, monkeypatc
     assert run_cli(["simulate", "photos", "--out", bad, "--split", "fog", "-q"], monkeypatch) == 2
     assert run_cli(["simulate", "photos", "--out", bad, "--set", "seed_px=[2,4]", "-q"], monkeypatch) == 2
     assert not bad.exists()
+
+
+def test_training_photos_vary_white_balance_and_exposure_held_out_ones_do_not():
+    """Training photos: some under-exposed (``dim``); held-out photos and one-setup photos never."""
+    dims = [render_photo(np.random.default_rng(s), "train", (160, 200), (5.0, 8.0), 0.0).conditions["dim"]
+            for s in range(24)]
+    assert 0 < sum(dims) < 24
+    assert not any(render_photo(np.random.default_rng(s), "heldout", (160, 200), (5.0, 8.0), 0.0).conditions["dim"]
+                   for s in range(8))

@@ -91,3 +91,29 @@ def test_labels_made_on_a_resized_copy_are_one_line(tiny_range, tmp_path, monkey
     coco["images"][0]["height"] *= 2
     p, err = _refused_training(coco, tiny_range, tmp_path, monkeypatch, capsys)
     assert str(p) in err and "000000.png" in err and "labels say" in err, err
+
+
+def test_held_out_photos_of_another_seed_size_are_resized_by_their_own(tmp_path):
+    """``--val`` photos whose seeds differ in size from the training photos are brought to the network's seed size
+    each by its own labels, not by the training labels' size."""
+    import cv2
+
+    from seedmap.detect.train_validate import plan_training
+
+    def coco(name: str, sides: list[float]) -> str:
+        images, anns = [], []
+        for i, side in enumerate(sides):
+            cv2.imwrite(str(tmp_path / f"{name}{i}.png"), np.zeros((200, 200, 3), np.uint8))
+            images.append({"id": i + 1, "file_name": f"{name}{i}.png", "width": 200, "height": 200})
+            for k in range(6):
+                anns.append({"id": len(anns) + 1, "image_id": i + 1, "category_id": 1, "iscrowd": 0,
+                             "bbox": [10 + 30 * k, 20, side, side], "area": side * side})
+        p = tmp_path / f"{name}.json"
+        p.write_text(json.dumps({"images": images, "annotations": anns, "categories": [{"id": 1, "name": "seed"}]}))
+        return str(p)
+
+    train, val = coco("train", [10.0, 10.0]), coco("val", [20.0, 5.0])
+    plan = plan_training([train], [val], None, 0.2, 0, 8.0)
+    assert plan.scale == pytest.approx(0.8)
+    assert plan.image_scales[(val, 0)] == pytest.approx(0.4) and plan.image_scales[(val, 1)] == pytest.approx(1.6)
+    assert plan.fixed_scale  # the training photos alone decide whether the network runs at one scale

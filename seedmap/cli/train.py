@@ -232,6 +232,15 @@ def train_fast_cnn_cmd(
     threads: int = typer.Option(DEFAULT_THREADS, "--threads", help="torch CPU threads."),
     c1: int = typer.Option(8, "--c1", help="Channels at full resolution."),
     c2: int = typer.Option(16, "--c2", help="Channels at half resolution."),
+    c3: int = typer.Option(0, "--c3", help="Channels of a quarter-resolution context stage (0 = none; the shipped "
+                                           "photo network: 24)."),
+    seed_px: Optional[float] = typer.Option(None, "--seed-px", help="From scratch (--init none): the seed size (px) "
+                                                                    "the network operates at; labelled images are "
+                                                                    "resized to it (default: 5, the field "
+                                                                    "network's)."),
+    off_scale: float = typer.Option(0.0, "--off-scale", help="Fraction of crops shown at 0.3-0.5x or 2.2-3.2x "
+                                                             "with their seeds as background (the network then "
+                                                             "fires on its own seed size only)."),
     iou_weight: float = typer.Option(1.0, "--iou-weight", help="Weight of the box 1-GIoU loss (0 = L1 only)."),
     scale_prob: float = typer.Option(0.5, "--scale-prob", help="Fraction of crops rescaled by 0.8-1.7x."),
     replay: float = typer.Option(DEFAULT_REPLAY, "--replay", help="On COCO labels: fraction of the crops taken from "
@@ -270,6 +279,14 @@ def train_fast_cnn_cmd(
     init_p = None if init.strip().lower() == "none" else shipped_or_path(init)
     if init_p is not None and not init_p.is_file():
         raise SeedmapError(f"{init_p}: --init weights not found (a fast_cnn .onnx file, or none)")
+    if seed_px is not None and (init_p is not None or not 2.0 <= seed_px <= 64.0):
+        raise SeedmapError("--seed-px needs --init none (a fine-tune keeps its network's seed size) and a size of "
+                           f"2-64 px, got {seed_px:g}" if init_p is None else
+                           "--seed-px needs --init none (a fine-tune keeps its starting network's seed size)")
+    if not 0.0 <= off_scale < 1.0:
+        raise SeedmapError(f"--off-scale must be in [0, 1), got {off_scale:g}")
+    if c3 < 0:
+        raise SeedmapError(f"--c3 must be >= 0, got {c3}")
     if not 0.0 < val_fraction < 1.0:
         raise SeedmapError(f"--val-fraction must be in (0, 1), got {val_fraction:g}")
     for name, v in (("--steps", steps), ("--batch", batch), ("--crop", crop)):
@@ -286,7 +303,8 @@ def train_fast_cnn_cmd(
     check_resume_dir(out, "training", [*data, *(val or []), init_p, images_root], strict=False)
     if (out / "fast_cnn.onnx").exists() and not resume:
         raise SeedmapError(f"{out / 'fast_cnn.onnx'} exists (use --resume to continue, or another --out)")
-    cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2,
+    cfg = CnnTrainConfig(steps=steps, batch=batch, crop=crop, seed=seed, threads=threads, c1=c1, c2=c2, c3=c3,
+                         seed_px=seed_px, off_scale=off_scale,
                          iou_weight=iou_weight, scale_prob=scale_prob, replay=replay, heat_min_area=heat_min_area,
                          arm_fraction=arm_fraction, lr=lr, val_fraction=val_fraction,
                          init_weights=str(init_p) if init_p else None)

@@ -1,11 +1,9 @@
 """Training of the ``fast`` detector's small CNN (torch on CPU) and its export to ONNX.
 
-The network (:class:`SeedNet`) is CenterNet-style and fully convolutional: for every full-resolution
-pixel it predicts a seed-centre logit, the four distances (px) from that pixel to the seed's box
-edges (left, top, right, bottom; GT convention x0/y0 inclusive, x1/y1 exclusive) and the sub-pixel
-offset (px) from the pixel to the seed's keypoint. Most of the work runs at half resolution (one
-stride-2 convolution, two 3x3 layers, one of them dilated for context); a full-resolution skip from
-the stem keeps the box edges pixel-exact, which a 5 px seed needs for IoU >= 0.5.
+The network (:mod:`seedmap.detect.cnn_net`) is CenterNet-style and fully convolutional: for every full-resolution
+pixel it predicts a seed-centre logit, the four distances (px) from that pixel to the seed's box edges (left, top,
+right, bottom; GT convention x0/y0 inclusive, x1/y1 exclusive) and the sub-pixel offset (px) from the pixel to the
+seed's keypoint.
 
 Targets come from a simulated dataset's ground truth (``gt/masks`` + ``gt/instances``) or from a user's COCO
 labels (boxes, with or without masks: :mod:`seedmap.detect.cnn_targets`), made per crop by :func:`crop_batch`
@@ -23,7 +21,8 @@ labels (boxes, with or without masks: :mod:`seedmap.detect.cnn_targets`), made p
   heatmap peak at inference;
 * augmentation: horizontal flip, brightness gain and, for ``scale_prob`` of the crops, a rescale by
   ``U(scale_lo, scale_hi)`` (0.8-1.7x: close-up arm scans show seeds ~1.5x larger than the field
-  images, where a network trained without it fired twice on a third of the seeds).
+  images, where a network trained without it fired twice on a third of the seeds); for ``off_scale_prob`` of the
+  crops a rescale far off the network's seed size (0.3-0.5x or 2.2-3.2x) with every seed background.
 
 Training recipes of the shipped networks and the runs that were measured: docs/method/detection.md.
 
@@ -41,51 +40,11 @@ from pathlib import Path
 import numpy as np
 
 from seedmap.detect.cnn import network_scale_cue
+from seedmap.detect.cnn_net import build_net, net_channels
 from seedmap.detect.cnn_targets import TrainImage, coco_image_targets, image_targets, is_coco_file, pad_to
 from seedmap.detect.labels import CocoSource
 from seedmap.errors import InputError
 from seedmap.progress import Progress, track
-
-#: output channels of the network: heat logit, l, t, r, b (px), dx, dy (px)
-N_OUT = 7
-
-
-def build_net(c1: int = 8, c2: int = 16):
-    """The torch :class:`SeedNet` (imports torch; training and export only)."""
-    import torch
-    from torch import nn
-
-    class SeedNet(nn.Module):
-        """Full-res stem -> half-res body (3 convs, one dilated) -> upsample + skip -> full-res head."""
-
-        def __init__(self) -> None:
-            super().__init__()
-            self.c1, self.c2 = c1, c2
-            self.stem = nn.Conv2d(3, c1, 3, padding=1)
-            self.down = nn.Conv2d(c1, c2, 3, stride=2, padding=1)
-            self.mid1 = nn.Conv2d(c2, c2, 3, padding=1)
-            self.mid2 = nn.Conv2d(c2, c2, 3, padding=2, dilation=2)
-            self.lat = nn.Conv2d(c2, c1, 1)
-            self.fuse = nn.Conv2d(c1, c1, 3, padding=1)
-            self.head = nn.Conv2d(c1, N_OUT, 1)
-            with torch.no_grad():
-                self.head.bias.zero_()
-                self.head.bias[0] = -4.0  # CenterNet prior: few pixels are centres
-                self.head.bias[1:5] = 2.0
-
-        def forward(self, x):  # noqa: ANN001, ANN201
-            r = torch.relu
-            s = r(self.stem(x))
-            h = r(self.down(s))
-            h = r(self.mid1(h))
-            h = r(self.mid2(h))
-            u = nn.functional.interpolate(self.lat(h), scale_factor=2.0, mode="nearest")
-            u = u[:, :, : s.shape[2], : s.shape[3]]
-            f = r(self.fuse(r(s + u)))
-            return self.head(f)
-
-    return SeedNet()
-
 
 # ------------------------------------------------------------------------------------------------
 # training data
@@ -167,6 +126,11 @@ class CropSpec:
     #: fraction of the crops rescaled by a factor drawn uniformly from ``scale_range``
     scale_prob: float = 0.0
     scale_range: tuple[float, float] = (0.8, 1.7)
+    #: fraction of the crops shown far off the network's seed size, by a factor drawn uniformly from one of
+    #: ``off_scale_range`` (seeds much smaller or much larger), with every seed in them background: the network
+    #: learns to fire on seeds of its own size only, which the ``score`` seed-size cue reads
+    off_scale_prob: float = 0.0
+    off_scale_range: tuple[tuple[float, float], tuple[float, float]] = ((0.3, 0.5), (2.2, 3.2))
 
 
 def _render_heat(size: int, kp: np.ndarray, sigma: np.ndarray, out: np.ndarray) -> None:
@@ -206,8 +170,10 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
     for k in range(n):
         im = images[int(rng.integers(len(images)) if weights is None else rng.choice(len(images), p=weights))]
         h, w = im.inst.shape
-        s = 1.0
-        if augment and sp.scale_prob > 0 and rng.random() < sp.scale_prob:
+        s, off = 1.0, False
+        if augment and sp.off_scale_prob > 0 and rng.random() < sp.off_scale_prob:
+            s, off = float(rng.uniform(*sp.off_scale_range[int(rng.integers(2))])), True
+        elif augment and sp.scale_prob > 0 and rng.random() < sp.scale_prob:
             s = float(rng.uniform(*sp.scale_range))
         src = int(np.ceil(size / s))  # source window (original pixels)
         src = min(src, w, h)
@@ -254,6 +220,8 @@ def crop_batch(images: list[TrainImage], n: int, size: int, rng: np.random.Gener
         ig_pix[sliv] = True
         ign[m_all] = np.maximum(ign[m_all], ig_pix[idx[m_all]])
         ign[heat >= 0.999] = 0.0  # never ignore a positive peak
+        if off:  # seeds far off the network's size: background
+            heat[:], reg[:], ign[:], wgt[:], m[:] = 0.0, 0.0, 0.0, 0.0, False
         if augment:
             rgb = np.clip(rgb * rng.uniform(0.8, 1.2), 0, 1)
             if rng.random() < 0.5:
@@ -336,9 +304,14 @@ class CnnTrainConfig:
     crop: int = 96
     lr: float = 2e-3
     seed: int = 0
-    #: channels at full / half resolution (8 / 16: the shipped networks)
+    #: channels at full / half / quarter resolution (8 / 16 / 0: the shipped field and arm networks; c3 = 0: no
+    #: quarter-resolution context stage)
     c1: int = 8
     c2: int = 16
+    c3: int = 0
+    #: training from scratch: the seed size (px) the network operates at, labelled images resized to it (None: the
+    #: field network's); a fine-tune keeps its starting network's
+    seed_px: float | None = None
     #: GT instances below this many visible pixels are background; from it up to heat_min_area
     #: they are ignored by the heatmap loss (slivers: CropSpec)
     min_area: int = 4
@@ -354,6 +327,8 @@ class CnnTrainConfig:
     scale_prob: float = 0.5
     scale_lo: float = 0.8
     scale_hi: float = 1.7
+    #: fraction of crops shown at 0.3-0.5x or 2.2-3.2x with their seeds as background (CropSpec.off_scale_prob)
+    off_scale: float = 0.0
     #: fraction of the crops from rehearsal photos (seedmap.detect.replay) when training on COCO labels (0 = none)
     replay: float = 0.0
     #: start from the weights of this fast_cnn ONNX file (fine-tuning; its channels replace c1/c2) instead of a
@@ -475,7 +450,8 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     from seedmap.detect.train_validate import heldout_report, network_seed_px, plan_training
 
     init_path = cfg.init_weights if cfg.init_weights else None
-    net_seed_px = network_seed_px(init_path, TRAINED_SEED_PX["field"])
+    net_seed_px = (float(cfg.seed_px) if cfg.seed_px and not init_path
+                   else network_seed_px(init_path, TRAINED_SEED_PX["field"]))
     plan = plan_training(list(train_sets), list(val_sets or []), images_root, cfg.val_fraction, cfg.seed,
                          net_seed_px)
     tr = load_training_images(train_sets, plan.train, 1, progress, images_root, plan.scale, plan.image_scales)
@@ -488,7 +464,8 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
         rep = replay_images(cfg.seed, net_seed_px, progress)
         tr, n_replay = tr + rep, len(rep)
     tr, va = [pad_to(im, cfg.crop) for im in tr], [pad_to(im, cfg.crop) for im in va]
-    spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi))
+    spec = CropSpec(cfg.heat_min_area, cfg.min_area, cfg.heat_sigma, cfg.scale_prob, (cfg.scale_lo, cfg.scale_hi),
+                    cfg.off_scale)
     vrng = np.random.default_rng(cfg.seed + 1)
     w_tr, w_va = image_weights(tr, cfg.arm_fraction, cfg.replay), image_weights(va, cfg.arm_fraction)
     vbatch = [torch.from_numpy(np.ascontiguousarray(a))
@@ -503,14 +480,14 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
 
         old = json.loads(read_safetensors(ck, "checkpoint")[1].get("config", "{}"))
         # the architecture comes from the checkpoint, not from the command line
-        cfg.c1, cfg.c2 = int(old.get("c1", cfg.c1)), int(old.get("c2", cfg.c2))
+        cfg.c1, cfg.c2, cfg.c3 = int(old.get("c1", cfg.c1)), int(old.get("c2", cfg.c2)), int(old.get("c3", 0))
     init = None
     if cfg.init_weights and not resume:
         init = onnx_weights(cfg.init_weights)
         if "stem.weight" not in init or "down.weight" not in init:
             raise InputError("has no SeedNet parameters (stem/down) to start from", cfg.init_weights)
-        cfg.c1, cfg.c2 = int(init["stem.weight"].shape[0]), int(init["down.weight"].shape[0])
-    net = build_net(cfg.c1, cfg.c2)
+        cfg.c1, cfg.c2, cfg.c3 = net_channels(init)
+    net = build_net(cfg.c1, cfg.c2, cfg.c3)
     if init is not None:
         sd = net.state_dict()
         missing = sorted(set(sd) - set(init))
@@ -573,6 +550,8 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
             "cpu_s": prev_cpu + time.process_time() - t_cpu0,
             "wall_s_this_run": time.perf_counter() - t_wall0,
             "final": history[-1] if history else None}
+    if not init_path and cfg.off_scale > 0:  # it fires on seeds of its own size only: read the size off the scores
+        info["scale_cue"] = "score"
     if init_path:  # a fine-tuned network reads its seed size off the ladder as its starting network does
         from seedmap.detect.runtime import network_info
 

@@ -177,10 +177,15 @@ def plan_training(train_sets: list, val_sets: list | None, images_root, val_frac
                 raise InputError("needs at least 2 frames for a held-out split (or pass --val)", d)
             tr[str(d)], va[str(d)] = list(range(n - 1)), [n - 1]
             heldout.append(HeldOut(dataset=Path(d), indices=(n - 1,)))
+    val_sizes: dict = {}
     for d in val_sets or []:
         if is_coco_file(d):
             src = CocoSource(d, images_root)
             heldout.append(HeldOut(coco=src, indices=tuple(range(len(src)))))
+            for k in range(len(src)):  # held-out photos at their own seed size too, as the training photos
+                own = src.seed_sides([k])
+                if len(own) >= PER_IMAGE_MIN_SEEDS:
+                    val_sizes[(str(d), k)] = float(np.median(own))
         else:
             heldout.append(HeldOut(dataset=Path(d), indices=tuple(range(len(SeedmapDataset(d))))))
     allsides = np.concatenate(sides) if sides else np.zeros(0)
@@ -193,10 +198,10 @@ def plan_training(train_sets: list, val_sets: list | None, images_root, val_frac
             raise InputError(f"the labelled seeds are {images_seed_px:.2g} px (median box side); the network needs "
                              f"seeds of at least {net_seed_px / 4.0:g} px (it would enlarge the images "
                              f"{scale:.1f}x, at most 4x)", coco)
-    scales = {key: float(net_seed_px) / v for key, v in per_image.items()}
+    scales = {key: float(net_seed_px) / v for key, v in {**val_sizes, **per_image}.items()}
     for (d, k), f in scales.items():
         if f > 4.0:
-            raise InputError(f"image {k}: its labelled seeds are {per_image[(d, k)]:.2g} px (median box side); the "
+            raise InputError(f"image {k}: its labelled seeds are {net_seed_px / f:.2g} px (median box side); the "
                              f"network needs seeds of at least {net_seed_px / 4.0:g} px", d)
     sizes = list(per_image.values())
     fixed = not sizes or max(sizes) <= SIZE_SPREAD * min(sizes)

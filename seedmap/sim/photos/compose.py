@@ -27,8 +27,12 @@ MIN_VISIBLE_FRACTION = 0.4
 #: held-out photos: probability that the light, and each variety, is one never trained on
 HELDOUT_P = 0.5
 #: lights: name -> split
-LIGHTS = {"flash": "train", "daylight": "train", "overcast": "train", "scanner": "train",
+LIGHTS = {"flash": "train", "daylight": "train", "overcast": "train", "scanner": "train", "window": "train",
           "lamp": "heldout", "dusk": "heldout"}
+#: training photos: probability of a strong colour cast (a white balance left on the wrong light) ...
+CAST_P = 0.35
+#: ... and of a dim exposure (under-exposed, noisy)
+DIM_P = 0.25
 
 
 def make_light(name: str, rng: Rng) -> tuple[Light, np.ndarray]:
@@ -45,6 +49,8 @@ def make_light(name: str, rng: Rng) -> tuple[Light, np.ndarray]:
         return Light(towards(rng.uniform(30, 70)), 0.3, 0.85, 0.35, 20.0, 0.55, 0.06), wb * [1.0, 1.0, 1.05]
     if name == "overcast":
         return Light(towards(rng.uniform(70, 90)), 0.7, 0.35, 0.08, 8.0, 0.3, 0.5), wb * [0.95, 1.0, 1.08]
+    if name == "window":  # side light through a window: neutral, low, soft-edged shadows
+        return Light(towards(rng.uniform(15, 40)), 0.25, 0.9, 0.25, 15.0, 0.6, 0.25), wb
     if name == "scanner":
         return Light(np.array([0.0, 0.3, 0.954]), 0.35, 0.75, 0.3, 15.0, 0.2, 0.15), np.ones(3)
     if name == "lamp":  # a desk lamp low at the side: warm, long hard shadows
@@ -146,11 +152,13 @@ def _layout(rng: Rng, kind: str, h: int, w: int, d: float, vars_: list[str], emp
     return under + [seeds[i] for i in order] + over
 
 
-def _camera(rng: Rng, lin: np.ndarray, wb: np.ndarray, d: float, light: str) -> np.ndarray:
-    """Linear radiance -> sRGB uint8: white balance, auto exposure, defocus/motion blur, noise, gamma."""
+def _camera(rng: Rng, lin: np.ndarray, wb: np.ndarray, d: float, light: str, dim: bool = False) -> np.ndarray:
+    """Linear radiance -> sRGB uint8: white balance, auto exposure (``dim``: under-exposed), defocus/motion blur,
+    noise, gamma."""
     img = lin * wb[None, None].astype(np.float32)
     p99 = float(np.percentile(img, 99.5))
-    target = rng.uniform(0.3, 0.55) if light == "dusk" else rng.uniform(0.75, 1.05)
+    dim = dim or light == "dusk"
+    target = rng.uniform(0.3, 0.55) if dim else rng.uniform(0.75, 1.05)
     img *= target / max(p99, 1e-3)
     if rng.random() < 0.5:
         img = cv2.GaussianBlur(img, (0, 0), rng.uniform(0.3, 0.12 * d + 0.4))
@@ -161,7 +169,7 @@ def _camera(rng: Rng, lin: np.ndarray, wb: np.ndarray, d: float, light: str) -> 
         ang = rng.uniform(0, 180)
         ker = cv2.warpAffine(ker, cv2.getRotationMatrix2D((k, k), ang, 1.0), ker.shape[::-1])
         img = cv2.filter2D(img, -1, ker / max(ker.sum(), 1e-6))
-    sig = rng.uniform(0.002, 0.015) * (3.0 if light == "dusk" else 1.0)
+    sig = rng.uniform(0.002, 0.015) * (3.0 if dim else 1.0)
     img = img + rng.normal(0, 1, img.shape).astype(np.float32) * (sig + 0.02 * np.sqrt(np.clip(img, 0, None)))
     srgb = np.where(img <= 0.0031308, 12.92 * img, 1.055 * np.power(np.clip(img, 0.0031308, None), 1 / 2.4) - 0.055)
     return np.clip(srgb * 255 + 0.5, 0, 255).astype(np.uint8)
@@ -210,6 +218,11 @@ def render_photo(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tupl
     kind = "panicle" if bg in PANICLE_BACKGROUNDS else ("pile" if rng.random() < 0.3 else "loose")
     empty = rng.random() < empty_fraction
     L, wb = make_light(light, rng)
+    dim = False
+    if split == "train" and setup is None:  # casts and dim exposures only in training photos
+        if rng.random() < CAST_P:
+            wb = wb * np.array([rng.uniform(0.75, 1.35), 1.0, rng.uniform(0.65, 1.3)])
+        dim = bool(rng.random() < DIM_P)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     r2 = ((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / (0.25 * (w * w + h * h))
     fall = {"flash": 0.55, "lamp": 0.35}.get(light, 0.15) * rng.uniform(0.3, 1.0)
@@ -236,9 +249,9 @@ def render_photo(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tupl
             ident = k
             full[k] = np.pi * t.a * t.b
         draw(t, img, ids, ident, L, falloff)
-    out = _camera(rng, img, wb, d, light)
+    out = _camera(rng, img, wb, d, light, dim)
     vis = np.bincount(ids.ravel(), minlength=k + 1)
     labelled = [i for i in range(1, k + 1) if vis[i] >= max(4.0, MIN_VISIBLE_FRACTION * full[i])]
     cond = {"background": bg, "light": light, "varieties": vars_, "layout": kind, "seed_diameter_px": round(d, 2),
-            "empty": bool(empty)}
+            "empty": bool(empty), "dim": dim}
     return Photo(out, ids, labelled, cond, lossless=bg == "flatbed")

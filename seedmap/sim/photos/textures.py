@@ -87,9 +87,14 @@ def _weave(rng: Rng, h: int, w: int, period: float, gap: float, twill: bool) -> 
 
 @background("cloth", "train")
 def cloth(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
-    """Woven cloth of any colour: threads 0.15-0.6 seed diameters wide, folds."""
-    p = max(2.0, seed_px * rng.uniform(0.15, 0.6))
-    pat = 0.55 + 0.45 * _weave(rng, h, w, p, rng.uniform(0.0, 0.3), bool(rng.random() < 0.3))
+    """Woven cloth of any colour, folds: a fine tight weave (threads 0.15-0.6 seed diameters wide) or, one cloth in
+    three, a coarse open one (sacking, scrim: threads 0.5-1.3 seeds wide with dark gaps)."""
+    if rng.random() < 1 / 3:
+        p = max(2.5, seed_px * rng.uniform(0.5, 1.3))
+        pat = 0.25 + 0.75 * _weave(rng, h, w, p, rng.uniform(0.3, 0.75), bool(rng.random() < 0.3))
+    else:
+        p = max(2.0, seed_px * rng.uniform(0.15, 0.6))
+        pat = 0.55 + 0.45 * _weave(rng, h, w, p, rng.uniform(0.0, 0.3), bool(rng.random() < 0.3))
     return tint(pat * _folds(rng, h, w, 0.25), random_colour(rng))
 
 
@@ -213,6 +218,34 @@ def tray(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     return tint(g, random_colour(rng, (0.0, 0.6), (0.3, 0.95)))
 
 
+@background("pebbles", "train")
+def pebbles(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Grit or pebbles of any stone colour on earth or cement: fine grit 0.15-0.6 seed diameters across (half of the
+    photos) or pebbles 1.3-3 seeds across, densely packed."""
+    base = random_colour(rng, (0.0, 0.35), (0.3, 0.8))
+    img = tint(0.5 + 0.35 * fbm(rng, h, w, seed_px * rng.uniform(1, 4), 4), base)
+    fine = rng.random() < 0.5
+    size = (seed_px * 0.15, seed_px * 0.6) if fine else (seed_px * 1.3, seed_px * 3.0)
+    n = int(h * w / (np.mean(size) ** 2) * rng.uniform(0.2, 0.7))
+    stone = random_colour(rng, (0.0, 0.3), (0.35, 0.85))
+    _blobs(rng, img, n, size, lambda: stone * rng.uniform(0.5, 1.4) * rng.uniform(0.9, 1.1, 3), shade=not fine)
+    return np.clip(img, 0, 1)
+
+
+@background("mottled", "train")
+def mottled(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A mottled print or stained surface (camouflage, marbled laminate, a patterned bag): two to four colours in
+    patches 0.5-4 seed diameters across."""
+    k = int(rng.integers(2, 5))
+    cols = [random_colour(rng, (0.05, 0.8), (0.2, 0.95)) for _ in range(k)]
+    img = tint(np.ones((h, w), np.float32), cols[0])
+    for c in cols[1:]:
+        m = fbm(rng, h, w, seed_px * rng.uniform(0.5, 4.0), 3)
+        edge = np.clip((m - rng.uniform(0.45, 0.6)) * rng.uniform(4, 20), 0, 1)[..., None]
+        img = img * (1 - edge) + edge * c[None, None]
+    return np.clip(img * (0.9 + 0.1 * noise(rng, h, w, 2.0))[..., None], 0, 1).astype(np.float32)
+
+
 @background("burlap", "heldout")
 def burlap(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     """Jute sacking: a coarse loose weave with dark gaps, tan (never trained on)."""
@@ -246,3 +279,38 @@ def gravel(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     _blobs(rng, img, n, (seed_px * 1.5, seed_px * 4),
            lambda: np.array([0.6, 0.58, 0.54]) * rng.uniform(0.5, 1.4) * rng.uniform(0.9, 1.1, 3))
     return np.clip(img, 0, 1)
+
+
+@background("sieve", "heldout")
+def sieve(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A wire sieve or mesh tray: shiny round wires on a square grid of 0.6-1.6 seed diameters over a dark or light
+    underside (never trained on)."""
+    period = max(3.0, seed_px * rng.uniform(0.6, 1.6))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    a = rng.uniform(0, np.pi / 2)
+    u = (xx * np.cos(a) + yy * np.sin(a)) / period
+    v = (-xx * np.sin(a) + yy * np.cos(a)) / period
+    r = rng.uniform(0.08, 0.2)
+    du, dv = np.abs(u - np.round(u)), np.abs(v - np.round(v))
+    wire = np.maximum(np.clip(1 - du / r, 0, 1), np.clip(1 - dv / r, 0, 1)) ** 0.5
+    under = rng.uniform(0.03, 0.2) if rng.random() < 0.6 else rng.uniform(0.6, 0.9)
+    metal = np.array([0.72, 0.7, 0.66]) * rng.uniform(0.7, 1.2)
+    img = tint(1.0 - wire, np.full(3, under)) + tint(wire * (0.8 + 0.2 * noise(rng, h, w, 3)), metal)
+    return np.clip(img, 0, 1)
+
+
+@background("tablecloth", "heldout")
+def tablecloth(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A printed tablecloth: checks or polka dots 0.5-3 seed diameters across in two colours, on a fine weave (never
+    trained on)."""
+    c0, c1 = random_colour(rng, (0.0, 0.3), (0.7, 0.95)), random_colour(rng, (0.4, 0.9), (0.3, 0.8))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    p = seed_px * rng.uniform(0.5, 3.0)
+    if rng.random() < 0.5:
+        m = ((np.floor(xx / p) + np.floor(yy / p)) % 2).astype(np.float32)
+    else:
+        fx, fy = xx / p - np.round(xx / p), yy / p - np.round(yy / p)
+        m = np.clip((rng.uniform(0.2, 0.4) - np.sqrt(fx * fx + fy * fy)) * p, 0, 1)
+    weave = 0.85 + 0.15 * _weave(rng, h, w, max(2.0, seed_px * 0.15), 0.1, False)
+    img = (tint(1 - m, c0) + tint(m, c1)) * (weave * _folds(rng, h, w, 0.15))[..., None]
+    return np.clip(img, 0, 1).astype(np.float32)
