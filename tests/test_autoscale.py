@@ -201,13 +201,13 @@ def test_the_photo_network_reads_a_grain_photos_seed_size_off_its_scores():
     det = make_detector("fast", overrides=["cnn.domain=photo"])
     assert network_scale_cue(det.path, det.info) == "score"
     errs = []
-    for seed in (1, 2, 4, 5, 6):
+    for seed in range(10):  # every photo of the stream, dim and colour-cast ones included; no estimate = error 1
         ph = render_photo(np.random.default_rng(seed), "train", (640, 640), (16.0, 24.0), 0.0)
         sides = [np.sqrt((np.ptp(xs) + 1) * (np.ptp(ys) + 1)) for xs, ys in
                  ((np.nonzero(ph.ids == k)[1], np.nonzero(ph.ids == k)[0]) for k in ph.seeds)]
         true = float(np.median(sides))
         est = estimate_seed_px(det.peaks, ph.image, det.trained_seed_px, "score").seed_px
-        errs.append(abs(est / true - 1))
-    assert np.median(errs) < 0.15, errs
+        errs.append(1.0 if est is None else abs(est / true - 1))
+    assert np.median(errs) < 0.15 and np.mean(np.array(errs) < 0.15) >= 0.7, errs
     with pytest.raises(ValueError, match="cue"):
         estimate_seed_px(det.peaks, ph.image, det.trained_seed_px, "colour")
