@@ -142,9 +142,12 @@ def test_scale_is_recorded_for_a_dataset_and_per_photo(cnn_range, frame, tmp_pat
     assert "seed size (estimated, per image)" in capsys.readouterr().out
     ims = json.loads((tmp_path / "ph" / "detections_coco.json").read_text())["images"]
     assert [im["file_name"] for im in ims] == ["a.png", "b.png"]
-    assert ims[0]["seed_px"] == pytest.approx(true, rel=0.15) and ims[0]["cnn_scale"] == 1.0
+    op = make_detector("fast", overrides=["cnn.domain=photo"]).trained_seed_px  # the photo network's seed size
+    assert ims[0]["seed_px"] == pytest.approx(true, rel=0.15)
     assert ims[1]["seed_px"] == pytest.approx(3 * true, rel=0.15)
-    assert ims[1]["cnn_scale"] == pytest.approx(5.0 / ims[1]["seed_px"], rel=1e-3)
+    for im in ims:
+        assert im["cnn_scale"] == pytest.approx(cnn_mod.auto_scale(im["seed_px"], op), rel=1e-3)
+    assert ims[1]["cnn_scale"] < 1.0
     meta = json.loads((tmp_path / "ph" / "meta.json").read_text())
     assert meta["scale_source"] == "auto" and meta["detections"] > 0
 

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 
 from seedmap.detect import make_detector
+from seedmap.detect.cnn import auto_scale
+from seedmap.detect.config import TRAINED_SEED_PX
 from seedmap.errors import ConfigError, InputError
 from seedmap.io.photos import PhotoSet, is_photo_input, read_photo
 
@@ -85,7 +87,9 @@ def test_detect_on_a_folder_keeps_the_file_names_one_coco_image_per_photo(photos
     assert sorted(p.name for p in (out / "overlay").iterdir()) == ["IMG_10.png", "IMG_2.png", "alpha.png",
                                                                     "gray.png", "scan16.png"]
     meta = json.loads((out / "meta.json").read_text())
-    assert meta["images"] == 5 and meta["cnn_scale"] == 1.0 and meta["seed_px"] == meta["trained_seed_px"] == 5.0
+    assert meta["images"] == 5 and meta["trained_seed_px"] == TRAINED_SEED_PX["photo"]  # the photo network's size
+    for im in coco["images"]:  # each photo at the scale its own estimate gives
+        assert im["cnn_scale"] == pytest.approx(auto_scale(im["seed_px"], TRAINED_SEED_PX["photo"]), rel=1e-3)
     one = tmp_path / "one"
     assert run_cli(["detect", photos / "IMG_10.png", "--detector", "fast", "--out", one], monkeypatch) == 0
     assert [im["file_name"] for im in json.loads((one / "detections_coco.json").read_text())["images"]] == \
@@ -152,8 +156,9 @@ def test_seed_px_scales_large_seeds_to_the_training_size(crop, tmp_path, monkeyp
     assert run_cli(["detect", photo, "--detector", "fast", "--out", out, "--set", "cnn.seed_px=10"],
                    monkeypatch) == 0
     meta = json.loads((out / "meta.json").read_text())
-    assert meta["cnn_scale"] == pytest.approx(0.5) and meta["seed_px"] == pytest.approx(10.0)
-    assert meta["trained_seed_px"] == 5.0
+    op = TRAINED_SEED_PX["photo"]  # a photo runs the photo network
+    assert meta["cnn_scale"] == pytest.approx(op / 10.0) and meta["seed_px"] == pytest.approx(10.0)
+    assert meta["trained_seed_px"] == op
 
 
 def test_seed_px_and_scale_together_or_too_small_seeds_are_config_errors():

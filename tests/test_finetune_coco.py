@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
+from seedmap.detect.config import TRAINED_SEED_PX
 from seedmap.detect.cnn_targets import TrainImage, rescale_targets
 from seedmap.detect.io import coco_from_records
 from seedmap.detect.train_validate import split_coco
@@ -87,7 +88,8 @@ def test_boxes_only_fine_tune_learns_at_the_network_seed_size_and_reports_heldou
     assert m["replay_images"] == REPLAY_PHOTOS and m["config"]["replay"] == 0.5  # rehearsal crops by default
     want = float(np.median(_sides(coco, {coco["images"][k]["id"] for k in tr})))
     assert m["images_seed_px"] == pytest.approx(want)
-    assert m["seed_px"] == 5.0 and m["labels_scale"] == pytest.approx(5.0 / want)  # the shipped network's size
+    op = TRAINED_SEED_PX["photo"]  # the seed size of the shipped photo network it starts from
+    assert m["seed_px"] == op and m["labels_scale"] == pytest.approx(op / want)
     # held-out F1 of the network before (the shipped one) and after, on the held-out image's labelled seeds
     n_val = len(_sides(coco, {coco["images"][va[0]]["id"]}))
     assert m["val_counts"]["n_gt"] == n_val and m["val_counts_before"]["n_gt"] == n_val
@@ -97,7 +99,7 @@ def test_boxes_only_fine_tune_learns_at_the_network_seed_size_and_reports_heldou
     import onnx
 
     info = json.loads({p.key: p.value for p in onnx.load(str(out / "fast_cnn.onnx")).metadata_props}["info"])
-    assert info["seed_px"] == 5.0 and info["images_seed_px"] == pytest.approx(want)
+    assert info["seed_px"] == op and info["images_seed_px"] == pytest.approx(want)
     assert info["scale_cue"] == "score"  # read off the ladder as the shipped photo network it started from is
     # a refiner for the resized network is not trained from the labels at their own size: one line, nothing written
     ref = tmp_path / "ref"

@@ -233,7 +233,7 @@ def train_fast_cnn_cmd(
     c1: int = typer.Option(8, "--c1", help="Channels at full resolution."),
     c2: int = typer.Option(16, "--c2", help="Channels at half resolution."),
     c3: int = typer.Option(0, "--c3", help="Channels of a quarter-resolution context stage (0 = none; the shipped "
-                                           "photo network: 24)."),
+                                           "photo network: 32)."),
     seed_px: Optional[float] = typer.Option(None, "--seed-px", help="From scratch (--init none): the seed size (px) "
                                                                     "the network operates at; labelled images are "
                                                                     "resized to it (default: 5, the field "

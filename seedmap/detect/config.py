@@ -36,8 +36,8 @@ class GtConfig(ConfigModel):
 
 #: typical seed diameter (px, median geometric mean of the GT box sides of detectable seeds) the shipped networks were
 #: trained on: field ranges at 1434x1050 (measured 5.0); arm scans show seeds of about twice the area; the photo network
-#: was trained on ranges and on grain photos each resized so that its seeds measure 5.0 px
-TRAINED_SEED_PX = {"field": 5.0, "arm": 7.0, "photo": 5.0}
+#: was trained on grain photos each resized so that its seeds measure 8.0 px
+TRAINED_SEED_PX = {"field": 5.0, "arm": 7.0, "photo": 8.0}
 
 #: what ``seedmap detect`` uses on image files and folders: the photo network on the whole image in one pass (a photo
 #: resized to its seeds' scale is small, and the tile gate's brightness test would skip dark seeds on a light surface)
