@@ -31,7 +31,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seedmap.detect.autoscale import estimate_seed_px  # noqa: E402
 from seedmap.detect.base import make_detector  # noqa: E402
-from seedmap.detect.cnn import network_scale_cue  # noqa: E402
 from seedmap.detect.config import min_visible_seed_px  # noqa: E402
 from seedmap.eval.detect_metrics import frame_metrics, prf  # noqa: E402
 
@@ -121,7 +120,7 @@ def main() -> None:
                 img = resize(it["image"], f)
                 true = it["true"] * f
                 t0 = time.perf_counter()
-                est = estimate_seed_px(det.peaks, img, det.trained_seed_px, network_scale_cue(det.path, det.info)).seed_px
+                est = estimate_seed_px(det.peaks, img, det.trained_seed_px, det.scale_cue, det.score_size).seed_px
                 dt = time.perf_counter() - t0
                 row = {"dataset": str(p), "domain": domain, "image": it["name"], "factor": f,
                        "width": img.shape[1], "height": img.shape[0], "true_seed_px": true, "est_seed_px": est,
@@ -172,7 +171,7 @@ def main() -> None:
     big = resize(it["image"], 4.0)[:3684, :4912]
     det = next(iter(dets.values()))
     t0 = time.perf_counter()
-    est = estimate_seed_px(det.peaks, big, det.trained_seed_px, network_scale_cue(det.path, det.info)).seed_px
+    est = estimate_seed_px(det.peaks, big, det.trained_seed_px, det.scale_cue, det.score_size).seed_px
     big_t = {"width": big.shape[1], "height": big.shape[0], "estimate_s": time.perf_counter() - t0,
              "true_seed_px": it["true"] * 4.0, "est_seed_px": est}
     print("18 MP:", big_t)

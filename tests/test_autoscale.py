@@ -18,7 +18,7 @@ import pytest
 from seedmap.detect import cnn as cnn_mod
 from seedmap.detect import make_detector
 from seedmap.detect.autoscale import Level, estimate_seed_px, size_from_levels
-from seedmap.detect.cnn import network_scale_cue
+from seedmap.detect.cnn import network_scale_cue, network_score_size
 from seedmap.detect.config import min_visible_seed_px
 from seedmap.errors import ConfigError
 from seedmap.eval.detect_metrics import frame_metrics
@@ -202,15 +202,30 @@ def test_the_photo_network_reads_a_grain_photos_seed_size_off_its_scores():
     from seedmap.sim.photos.compose import render_photo
 
     det = make_detector("fast", overrides=["cnn.domain=photo"])
-    assert network_scale_cue(det.path, det.info) == "score"
+    assert network_scale_cue(det.path, det.info) == "score" and det.scale_cue == "score"
     errs = []
     for seed in range(10):  # every photo of the stream, dim and colour-cast ones included; no estimate = error 1
         ph = render_photo(np.random.default_rng(seed), "train", (640, 640), (16.0, 24.0), 0.0)
         sides = [np.sqrt((np.ptp(xs) + 1) * (np.ptp(ys) + 1)) for xs, ys in
                  ((np.nonzero(ph.ids == k)[1], np.nonzero(ph.ids == k)[0]) for k in ph.seeds)]
         true = float(np.median(sides))
-        est = estimate_seed_px(det.peaks, ph.image, det.trained_seed_px, "score").seed_px
+        est = estimate_seed_px(det.peaks, ph.image, det.trained_seed_px, "score", det.score_size).seed_px
         errs.append(1.0 if est is None else abs(est / true - 1))
     assert np.median(errs) < 0.15 and np.mean(np.array(errs) < 0.15) >= 0.7, errs
     with pytest.raises(ValueError, match="cue"):
         estimate_seed_px(det.peaks, ph.image, det.trained_seed_px, "colour")
+
+
+def test_the_score_cues_multiple_belongs_to_the_network(tmp_path):
+    """A network file's recorded multiple wins; shipped files use SCORE_SIZE; a trained file without one (older
+    fine-tunes) keeps the multiple it was made with; the estimate scales with it."""
+    from seedmap.detect.autoscale import SCORE_SIZE, UNRECORDED_SCORE_SIZE, size_from_scores
+    from seedmap.detect.cnn import default_cnn_path
+
+    shipped = default_cnn_path("photo")
+    assert network_score_size(shipped, {}) == SCORE_SIZE
+    assert network_score_size(shipped, {"score_size": 1.3}) == 1.3
+    assert network_score_size(tmp_path / "fast_cnn.onnx", {"scale_cue": "score"}) == UNRECORDED_SCORE_SIZE
+    levels = [Level(2.0, 30, 1.0, 0.70, 8.0), Level(1.0, 30, 1.0, 0.90, 8.0), Level(0.5, 30, 1.0, 0.70, 8.0)]
+    assert size_from_scores(levels, 8.0, 1.0) == pytest.approx(8.0)  # symmetric scores: the peak at scale 1
+    assert size_from_scores(levels, 8.0, 1.3) == pytest.approx(1.3 * 8.0)

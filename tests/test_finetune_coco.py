@@ -101,6 +101,9 @@ def test_boxes_only_fine_tune_learns_at_the_network_seed_size_and_reports_heldou
     info = json.loads({p.key: p.value for p in onnx.load(str(out / "fast_cnn.onnx")).metadata_props}["info"])
     assert info["seed_px"] == op and info["images_seed_px"] == pytest.approx(want)
     assert info["scale_cue"] == "score"  # read off the ladder as the shipped photo network it started from is
+    from seedmap.detect.autoscale import SCORE_SIZE
+
+    assert info["score_size"] == SCORE_SIZE  # ... with its multiple, whatever later networks ship with
     # a refiner for the resized network is not trained from the labels at their own size: one line, nothing written
     ref = tmp_path / "ref"
     assert run_cli(["train", "cnn-refiner", labels, "--images-root", tmp_path / "set" / "images", "--weights",

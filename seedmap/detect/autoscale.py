@@ -17,8 +17,9 @@ size)^2, at most ``BLUR_MAX`` of it). The ladder stops two levels past the targe
 
 That is the ``boxes`` cue (the field and arm networks). A network trained on photos of many textures predicts boxes
 of about its operating size at every scale, so its cue is ``score`` (:data:`CUES`): the whole ladder runs and the
-seeds have ``SCORE_SIZE`` x the operating size where the mean score of the confident peaks is highest (a parabola
-through the best level and its neighbours in log scale). Method and measured accuracy: docs/method/detection.md.
+seeds have ``score_size`` x the operating size where the mean score of the confident peaks is highest (a parabola
+through the best level and its neighbours in log scale); the multiple belongs to the network (``info["score_size"]``,
+:func:`seedmap.detect.cnn.network_score_size`). Method and measured accuracy: docs/method/detection.md.
 """
 
 from __future__ import annotations
@@ -50,9 +51,13 @@ TARGET = 1.8
 BLUR = 0.45
 #: ... removing at most this fraction of the apparent size
 BLUR_MAX = 0.25
-#: ``score`` cue: the seeds measure this multiple of the operating size where the confident peaks score highest
-#: (1.05 chosen on the validation photos: 92 % of the estimates within 15 %, against 88 % for 1.0 and 81 % for 1.1)
+#: ``score`` cue of the shipped photo network (and of networks trained from scratch with its recipe): the seeds
+#: measure this multiple of the operating size where the confident peaks score highest (1.05 chosen on the
+#: validation photos: 92 % of the estimates within 15 %, against 88 % for 1.0 and 81 % for 1.1)
 SCORE_SIZE = 1.05
+#: the multiple of a ``score``-cue network whose file records none (networks fine-tuned from the photo network
+#: seedmap shipped up to 0.6.0, which read its seed size at 1.2x)
+UNRECORDED_SCORE_SIZE = 1.2
 
 
 @dataclass
@@ -157,11 +162,12 @@ def measure_level(peaks_fn, pyramid: list[np.ndarray], s: float, points: np.ndar
             np.concatenate(xy))
 
 
-def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float, cue: str = "boxes"  # noqa: ANN001
-                     ) -> SeedSizeEstimate:
+def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float, cue: str = "boxes",  # noqa: ANN001
+                     score_size: float = SCORE_SIZE) -> SeedSizeEstimate:
     """The seeds' typical size (px) in RGB ``image`` (module docstring); ``peaks_fn(img) -> CnnPeaks`` is a
     network's peak finder at its own resolution (:meth:`seedmap.detect.cnn.CnnDetector.peaks`), ``operating_px``
-    the seed size it is trained for, ``cue`` how the size is read off the ladder (:data:`CUES`)."""
+    the seed size it is trained for, ``cue`` how the size is read off the ladder (:data:`CUES`) and
+    ``score_size`` the network's multiple for the ``score`` cue."""
     if cue not in CUES:
         raise ValueError(f"unknown seed-size cue {cue!r} (known: {', '.join(CUES)})")
     h, w = image.shape[:2]
@@ -180,12 +186,13 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float, cue: str 
         above = above + 1 if crossed and not (lv.peaks >= MIN_PEAKS and lv.box_px <= target) else 0
         if above >= 2:
             break
-    return SeedSizeEstimate(CUES[cue](levels, operating_px), levels)
+    size = size_from_scores(levels, operating_px, score_size) if cue == "score" else CUES[cue](levels, operating_px)
+    return SeedSizeEstimate(size, levels)
 
 
-def size_from_scores(levels: list[Level], operating_px: float) -> float | None:
-    """The ``score`` cue: SCORE_SIZE x ``operating_px`` over the scale where the confident peaks' mean score peaks
-    (module docstring); None when no level has MIN_PEAKS confident peaks."""
+def size_from_scores(levels: list[Level], operating_px: float, score_size: float = SCORE_SIZE) -> float | None:
+    """The ``score`` cue: ``score_size`` x ``operating_px`` over the scale where the confident peaks' mean score
+    peaks (module docstring); None when no level has MIN_PEAKS confident peaks."""
     use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
     if not use:
         return None
@@ -197,7 +204,7 @@ def size_from_scores(levels: list[Level], operating_px: float) -> float | None:
         a, b = np.polyfit(x, y, 2)[:2]
         if a < 0:
             s = float(np.exp(np.clip(-b / (2 * a), x.min(), x.max())))
-    return SCORE_SIZE * operating_px / s
+    return score_size * operating_px / s
 
 
 def size_from_levels(levels: list[Level], operating_px: float) -> float | None:

@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from seedmap.detect.autoscale import estimate_seed_px
+from seedmap.detect.autoscale import SCORE_SIZE, UNRECORDED_SCORE_SIZE, estimate_seed_px
 from seedmap.detect.base import Detector, check_image, logit, map_to_input, register_detector
 from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path
 from seedmap.detect.config import TRAINED_SEED_PX, CnnConfig
@@ -58,6 +58,15 @@ def network_scale_cue(path: str | Path, info: dict) -> str:
     """The seed-size cue of the network at ``path`` whose ONNX info is ``info``."""
     shipped = Path(path).resolve().parent == WEIGHTS_DIR.resolve()
     return str(info.get("scale_cue") or (SHIPPED_CUES.get(Path(path).name) if shipped else None) or "boxes")
+
+
+def network_score_size(path: str | Path, info: dict) -> float:
+    """The ``score`` cue's multiple (seedmap.detect.autoscale) of the network at ``path`` whose ONNX info is
+    ``info``: recorded by training (a fine-tune inherits its starting network's), SCORE_SIZE for a shipped
+    network, else UNRECORDED_SCORE_SIZE."""
+    if info.get("score_size"):
+        return float(info["score_size"])
+    return SCORE_SIZE if Path(path).resolve().parent == WEIGHTS_DIR.resolve() else UNRECORDED_SCORE_SIZE
 
 
 def default_cnn_path(domain: str = "field") -> Path:
@@ -231,6 +240,9 @@ class CnnDetector(Detector):
         #: the seed diameter (px) the network operates at: recorded by `seedmap train fast-cnn`, else the shipped
         #: networks' (TRAINED_SEED_PX of cnn.domain)
         self.trained_seed_px = float(self.info.get("seed_px") or TRAINED_SEED_PX[self.cfg.domain])
+        #: how the seed size is read off the scale ladder (``auto``): the cue and the ``score`` cue's multiple
+        self.scale_cue = network_scale_cue(self.path, self.info)
+        self.score_size = network_score_size(self.path, self.info)
         #: the network runs on the image resized by this factor: set by the config or the network (``scale_source``
         #: seed_px | scale | network), else (``auto``) from the seed size estimated on the next image it sees
         self.scale, self.scale_source = fixed_scale(self.cfg, self.trained_seed_px, self.info.get("images_seed_px"))
@@ -247,7 +259,7 @@ class CnnDetector(Detector):
         """The input scale, estimated from RGB ``image`` first when it is not known yet (``auto``)."""
         if self.scale is None:
             self.seed_px_estimate = estimate_seed_px(self.peaks, check_image(image), self.trained_seed_px,
-                                                     network_scale_cue(self.path, self.info)).seed_px
+                                                     self.scale_cue, self.score_size).seed_px
             self.scale = auto_scale(self.seed_px_estimate, self.trained_seed_px)
         return self.scale
 

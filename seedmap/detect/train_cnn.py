@@ -39,7 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from seedmap.detect.cnn import network_scale_cue
+from seedmap.detect.autoscale import SCORE_SIZE
+from seedmap.detect.cnn import network_scale_cue, network_score_size
 from seedmap.detect.cnn_net import build_net, net_channels
 from seedmap.detect.cnn_targets import TrainImage, coco_image_targets, image_targets, is_coco_file, pad_to
 from seedmap.detect.labels import CocoSource
@@ -551,11 +552,14 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
             "wall_s_this_run": time.perf_counter() - t_wall0,
             "final": history[-1] if history else None}
     if not init_path and cfg.off_scale > 0:  # it fires on seeds of its own size only: read the size off the scores
-        info["scale_cue"] = "score"
+        info["scale_cue"], info["score_size"] = "score", SCORE_SIZE
     if init_path:  # a fine-tuned network reads its seed size off the ladder as its starting network does
         from seedmap.detect.runtime import network_info
 
-        info["scale_cue"] = network_scale_cue(init_path, network_info(init_path))
+        init_info = network_info(init_path)
+        info["scale_cue"] = network_scale_cue(init_path, init_info)
+        if info["scale_cue"] == "score":
+            info["score_size"] = network_score_size(init_path, init_info)
     if plan.images_seed_px is not None:
         # the network expects seeds of seed_px in its input; the user's images show them at images_seed_px (one
         # size: the network runs at that fixed scale) or at several (it estimates each image's scale)
