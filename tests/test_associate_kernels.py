@@ -190,17 +190,17 @@ def test_grid_knn_gives_the_kdtree_sets_and_medians(dets):
 
 
 def test_detector_gathers_equal_the_numpy_expressions(cnn_range):
-    from seedmap.detect.kernels import INPUT_LUT, tile_batch
+    from seedmap.detect.kernels import INPUT_LUT, window_batch
     from seedmap.detect.mlp import patches
 
     img = np.ascontiguousarray(cnn_range[0].left)
     h, w = img.shape[:2]
-    t, s = 48, 64
-    pad = np.pad(img, ((8, 8 + 48), (8, 8 + 48), (0, 0)))
-    tiles = np.array([[0, 0], [3, 5], [h // t, w // t], [1, 0]], np.int64)
-    want = np.stack([pad[ty * t: ty * t + s, tx * t: tx * t + s] for ty, tx in tiles])
+    t, sh, sw = 48, 64, 3 * 48 + 16  # runs of three tiles and their margin
+    pad = np.pad(img, ((8, 8 + 48), (8, 8 + 3 * 48), (0, 0)))
+    org = t * np.array([[0, 0], [3, 5], [h // t, w // t], [1, 0]], np.int64)
+    want = np.stack([pad[y0: y0 + sh, x0: x0 + sw] for y0, x0 in org])
     want = np.ascontiguousarray((want.astype(np.float32) * (1.0 / 255.0)).transpose(0, 3, 1, 2))
-    assert np.array_equal(tile_batch(pad, tiles, t, s, INPUT_LUT), want)
+    assert np.array_equal(window_batch(pad, org, sh, sw, INPUT_LUT), want)
     rng = np.random.default_rng(3)
     x = np.r_[0, 2, w - 1, 100, rng.integers(0, w, 300)]
     y = np.r_[0, h - 1, 5, h - 3, rng.integers(0, h, 300)]

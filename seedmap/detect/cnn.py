@@ -26,7 +26,7 @@ from seedmap.detect.autoscale import SCORE_SIZE, UNRECORDED_SCORE_SIZE, estimate
 from seedmap.detect.base import Detector, check_image, logit, map_to_input, register_detector
 from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path
 from seedmap.detect.config import TRAINED_SEED_PX, CnnConfig
-from seedmap.detect.kernels import INPUT_LUT, tile_batch
+from seedmap.detect.kernels import INPUT_LUT, window_batch
 from seedmap.detect.runtime import WEIGHTS_DIR, load_session, shipped_or_path
 from seedmap.errors import ConfigError
 from seedmap.records import Detections, StereoDetections, StereoFrame
@@ -171,6 +171,18 @@ def gate_tiles(f: np.ndarray, tile: int, half: bool = False, shape: tuple[int, i
     pad[:hh, :ww] = hit[:hh, :ww]
     cnt = pad.reshape(nty, t2, ntx, t2).sum(axis=(1, 3))
     return np.argwhere(cnt >= GATE_MIN_PX)
+
+
+def tile_runs(tiles: np.ndarray) -> np.ndarray:
+    """``(R, 3)`` int ``(ty, tx, n)``: the row-major ``(ty, tx)`` tiles (:func:`gate_tiles`) as runs of ``n``
+    neighbouring tiles along a row starting at tile ``(ty, tx)``. The network runs once per run (its windows
+    share their margins, and the tiles inside a run see each other as context)."""
+    if len(tiles) == 0:
+        return np.zeros((0, 3), np.int64)
+    ty, tx = tiles[:, 0].astype(np.int64), tiles[:, 1].astype(np.int64)
+    start = np.r_[True, (ty[1:] != ty[:-1]) | (tx[1:] != tx[:-1] + 1)]
+    first = np.flatnonzero(start)
+    return np.stack([ty[first], tx[first], np.diff(np.r_[first, len(ty)])], axis=1)
 
 
 _K3 = np.ones((3, 3), np.uint8)
@@ -330,22 +342,29 @@ class CnnDetector(Detector):
             tiles = gate_tiles(seediness(cv2.resize(img, (w // 2, h // 2), interpolation=cv2.INTER_AREA)), c.tile,
                                half=True, shape=(h, w))
             t, m = int(c.tile), MARGIN
-            s = t + 2 * m
             nty, ntx = -(-h // t), -(-w // t)
             pad = cv2.copyMakeBorder(img, m, nty * t - h + m, m, ntx * t - w + m, cv2.BORDER_CONSTANT, value=0)
-            for k0 in range(0, len(tiles), BATCH):
-                tb = tiles[k0:k0 + BATCH]
-                # the windows, channels first, / 255 (one compiled pass)
-                x = tile_batch(pad, np.ascontiguousarray(tb, np.int64), t, s, INPUT_LUT)
-                d = decode(self._run(x), self.peak_threshold, (m, m + t, m, m + t), SMOOTH)
-                # image pixel = tile origin (minus the margin) + position in the padded window
-                parts.append((d[1:], d[1] + tb[d[0], 1] * t - m, d[2] + tb[d[0], 0] * t - m))
+            runs = tile_runs(tiles)
+            for n in np.unique(runs[:, 2]):  # runs of n tiles: one window of n tiles plus the margin each
+                rn = runs[runs[:, 2] == n]
+                per = max(1, BATCH // int(n))
+                for k0 in range(0, len(rn), per):
+                    rb = rn[k0:k0 + per]
+                    x = window_batch(pad, np.ascontiguousarray(rb[:, :2] * t, np.int64), t + 2 * m, int(n) * t + 2 * m,
+                                     INPUT_LUT)
+                    d = decode(self._run(x), self.peak_threshold, (m, m + t, m, m + int(n) * t), SMOOTH)
+                    # image pixel = window origin (minus the margin) + position in the window
+                    parts.append((d[1:], d[1] + rb[d[0], 1] * t - m, d[2] + rb[d[0], 0] * t - m))
         if sum(len(p[1]) for p in parts) == 0:
             return CnnPeaks.empty()
         xs = np.concatenate([p[1] for p in parts]).astype(np.float64)
         ys = np.concatenate([p[2] for p in parts]).astype(np.float64)
         raw = np.stack([np.concatenate([p[0][k] for p in parts]).astype(np.float64) for k in range(2, 9)], axis=1)
         keep = (xs < w) & (ys < h)
+        if c.tile:  # tile by tile (row-major), then row-major inside a tile: the order does not depend on the runs
+            t = int(c.tile)
+            order = np.lexsort((xs, ys, xs // t, ys // t))
+            keep = order[keep[order]]
         return CnnPeaks(xs[keep], ys[keep], raw[keep])
 
     def to_detections(self, pk: CnnPeaks, shape: tuple[int, int]) -> Detections:

@@ -1,7 +1,7 @@
 """Compiled (numba) pixel gathers of the fast detector, each giving exactly what the numpy code it replaces gave.
 
-* :func:`tile_batch` - the network's input batch: ``tile + 2 * margin`` px windows of the padded image, channels
-  first, scaled to [0, 1] (``np.stack`` + ``astype`` + ``transpose`` in one pass);
+* :func:`window_batch` - the network's input batch: equal windows of the padded image (a run of tiles plus the
+  margin), channels first, scaled to [0, 1] (``np.stack`` + ``astype`` + ``transpose`` in one pass);
 * :func:`gather_patches` - the refiner's RGB patches around peaks, written straight into its feature rows.
 
 Both map every uint8 value through a 256-entry table computed by the numpy expression they replace, so the floats
@@ -21,17 +21,17 @@ PATCH_LUT = np.arange(256).astype(np.uint8).astype(np.float32) / 255.0
 
 
 @kernel
-def tile_batch(pad: np.ndarray, tiles: np.ndarray, t: int, s: int, lut: np.ndarray) -> np.ndarray:
-    """``(K, C, s, s)`` float32: for tile ``(ty, tx)`` of ``tiles`` (K, 2) the window ``pad[ty t: ty t + s,
-    tx t: tx t + s]`` of the ``(H, W, C)`` uint8 image, channels first, every value mapped by ``lut``."""
-    k = len(tiles)
+def window_batch(pad: np.ndarray, origins: np.ndarray, sh: int, sw: int, lut: np.ndarray) -> np.ndarray:
+    """``(K, C, sh, sw)`` float32: for origin ``(y0, x0)`` of ``origins`` (K, 2) the window ``pad[y0: y0 + sh,
+    x0: x0 + sw]`` of the ``(H, W, C)`` uint8 image, channels first, every value mapped by ``lut``."""
+    k = len(origins)
     ch = pad.shape[2]
-    out = np.empty((k, ch, s, s), np.float32)
+    out = np.empty((k, ch, sh, sw), np.float32)
     for b in range(k):
-        y0 = tiles[b, 0] * t
-        x0 = tiles[b, 1] * t
-        for i in range(s):
-            for j in range(s):
+        y0 = origins[b, 0]
+        x0 = origins[b, 1]
+        for i in range(sh):
+            for j in range(sw):
                 for c in range(ch):
                     out[b, c, i, j] = lut[pad[y0 + i, x0 + j, c]]
     return out
