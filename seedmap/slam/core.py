@@ -282,15 +282,16 @@ class SemanticSlam:
                          and len(self.tracks[int(track[i])].obs) + 1 >= self.cfg.backend.min_observations
                          for i in cand]] if len(cand) else cand
             may = self._admission_budget(f.kp_left, cand)
-            for i in np.flatnonzero(has3d):
-                if track[i] < 0:
-                    track[i] = self._new_track()
-                    tr = self.tracks[track[i]]
-                    tr.obs.append((k, *obs[i]))
-                    tr.seed_ids.append(int(sids[i]))
-                else:
-                    self._add_obs(int(track[i]), k, obs[i], sids[i], T, pts[i], graph, values,
-                                  may_admit=bool(may[i]))
+            for i in np.flatnonzero(has3d & (track >= 0)):
+                self._add_obs(int(track[i]), k, obs[i], sids[i], T, pts[i], graph, values, may_admit=bool(may[i]))
+            # the rest start tracks, numbered in keypoint order (one observation each: no factor yet)
+            new = np.flatnonzero(has3d & (track < 0))
+            track[new] = np.arange(self._next_track, self._next_track + len(new))
+            for tid, o, sid in zip(track[new].tolist(), obs[new].tolist(), sids[new].tolist()):
+                tr = self.tracks[tid] = _Track()
+                tr.obs.append((k, *o))
+                tr.seed_ids.append(int(sid))
+            self._next_track += len(new)
 
         # back-end
         t0 = time.perf_counter()
