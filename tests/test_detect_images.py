@@ -167,3 +167,27 @@ def test_seed_px_and_scale_together_or_too_small_seeds_are_config_errors():
     with pytest.raises(ConfigError, match="too small"):
         make_detector("fast", overrides=["cnn.seed_px=1"])
     assert make_detector("fast", overrides=["cnn.seed_px=7", "cnn.domain=arm"]).scale == pytest.approx(1.0)
+
+
+def test_one_seed_size_per_folder_is_the_median_of_the_photos_estimates(tmp_path, monkeypatch):
+    """``cnn.scale_per=folder``: every photo runs at one seed size, the median of what each photo alone gives
+    (a fixed camera), near the true size; the default keeps each photo's own estimate."""
+    from seedmap.sim.photos.compose import render_photo
+
+    d = tmp_path / "rig"
+    d.mkdir()
+    for k in range(5):
+        ph = render_photo(np.random.default_rng(k), "train", (480, 480), (18.0, 19.0), 0.0)
+        cv2.imwrite(str(d / f"tray_{k}.png"), cv2.cvtColor(ph.image, cv2.COLOR_RGB2BGR))
+    own, folder = tmp_path / "own", tmp_path / "folder"
+    assert run_cli(["detect", d, "--out", own], monkeypatch) == 0
+    assert run_cli(["detect", d, "--out", folder, "--set", "cnn.scale_per=folder"], monkeypatch) == 0
+    est = [im["seed_px"] for im in json.loads((own / "detections_coco.json").read_text())["images"]]
+    assert sum(e is not None for e in est) >= 3
+    want = float(np.median([e for e in est if e is not None]))
+    got = [im["seed_px"] for im in json.loads((folder / "detections_coco.json").read_text())["images"]]
+    assert got == [pytest.approx(want, abs=1e-3)] * 5
+    assert abs(want / 18.5 - 1) < 0.2
+    meta = json.loads((folder / "meta.json").read_text())
+    assert meta["scale_source"] == "auto" and meta["seed_px_estimate"] == pytest.approx(want)
+    assert meta["cnn_scale"] == pytest.approx(auto_scale(want, TRAINED_SEED_PX["photo"]))

@@ -267,6 +267,13 @@ class CnnDetector(Detector):
         if self.scale_source == "auto":
             self.scale, self.seed_px_estimate = None, None
 
+    def set_seed_px_estimate(self, seed_px: float | None) -> None:
+        """With ``cnn.scale = auto``: use the seed size ``seed_px`` (px; None = none found) as if estimated, until
+        :meth:`reset_scale`; else nothing."""
+        if self.scale_source == "auto":
+            self.seed_px_estimate = seed_px
+            self.scale = auto_scale(seed_px, self.trained_seed_px)
+
     def ensure_scale(self, image: np.ndarray) -> float:
         """The input scale, estimated from RGB ``image`` first when it is not known yet (``auto``)."""
         if self.scale is None:

@@ -64,6 +64,9 @@ class CnnConfig(ConfigModel):
     #: ``auto`` = estimate the seeds' size on the first image of a sequence (each photo of a folder) and resize when
     #: it lies outside the network's band; a number = run the network on the image resized by it (0-4]
     scale: Union[Literal["auto"], float] = "auto"
+    #: ``auto`` on a folder of photos: ``image`` = each photo's own estimate; ``folder`` = one seed size for the whole
+    #: folder, the median of the estimates on up to FOLDER_SAMPLE photos spread over it (a fixed camera or scanner)
+    scale_per: Literal["image", "folder"] = "image"
     #: the seeds' typical diameter (px, geometric mean of a seed's box sides) in your images: sets the scale to the
     #: network's training seed size / seed_px (TRAINED_SEED_PX, or the size a ``seedmap train fast-cnn`` network
     #: records); None = use ``scale``
