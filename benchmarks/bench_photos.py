@@ -15,7 +15,8 @@ light and layout; false positives per megapixel on photos without seeds. Sets co
 Fine-tunes run on the mixed held-out set (many setups in ten photos) and on each ``--setup`` set (one user's setup:
 ten photos of it train, the other twenty are scored).
 
-``--compare-domain field`` also scores the field network on the same photos (what the photos got before).
+``--compare-domain field`` also scores the field network on the same photos (what the photos got before);
+``--compare-set KEY=VALUE`` the shipped network with that setting (e.g. ``cnn.scale_per=folder``) on every set.
 """
 
 from __future__ import annotations
@@ -113,9 +114,10 @@ def subset(folder: Path, gt: dict, names: list[str], dest: Path) -> Path:
     return dest
 
 
-def finetune(folder: Path, n: int, extra: list[str], work: Path, tag: str) -> dict:
+def finetune(folder: Path, n: int, extra: list[str], work: Path, tag: str, compare: list[str] = ()) -> dict:
     """``seedmap train fast-cnn`` on the first ``n`` photos with seeds of ``folder``; box F1 of ``seedmap detect``
-    on the rest before (defaults) and after (the fine-tuned weights)."""
+    on the rest before (defaults; also with each ``compare`` override, ``before_set``) and after (the fine-tuned
+    weights)."""
     gt = json.loads((folder / "labels.json").read_text())
     with_seeds = {an["image_id"] for an in gt["annotations"]}
     names = [im["file_name"] for im in gt["images"]]
@@ -125,13 +127,14 @@ def finetune(folder: Path, n: int, extra: list[str], work: Path, tag: str) -> di
     te = subset(folder, gt, rest, work / f"{tag}_test")
     (te / "labels.json").unlink()
     before = detect_and_score(te, gt, rest, work, f"{tag}_before")
+    before_set = {o: detect_and_score(te, gt, rest, work, f"{tag}_before_{k}", "--set", o) for k, o in enumerate(compare)}
     wall, cpu = seedmap("train", "fast-cnn", str(tr / "labels.json"), "--out", str(work / f"{tag}_ft"), *extra)
     tm = json.loads((work / f"{tag}_ft" / "train_metrics.json").read_text())
     after = detect_and_score(te, gt, rest, work, f"{tag}_after", "--weights", str(work / f"{tag}_ft" / "fast_cnn.onnx"))
     print("finetune", tag, round(wall), before["f1"], "->", after["f1"], flush=True)
     return {"folder": str(folder), "setup": gt.get("info", {}).get("setup"), "train_images": train,
             "test_images": len(rest), "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "steps": tm.get("steps"),
-            "val_f1": tm.get("val_f1"), "before": before, "after": after}
+            "val_f1": tm.get("val_f1"), "before": before, "before_set": before_set, "after": after}
 
 
 def main() -> None:
@@ -143,6 +146,8 @@ def main() -> None:
     ap.add_argument("--finetune-n", type=int, default=10, help="labelled photos to fine-tune on")
     ap.add_argument("--finetune-args", default="", help="extra options of seedmap train fast-cnn")
     ap.add_argument("--compare-domain", action="append", default=[], help="also score cnn.domain=NAME")
+    ap.add_argument("--compare-set", action="append", default=[],
+                    help="also score the shipped network with this --set KEY=VALUE (held-out, seen and setup sets)")
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args()
     res: dict = {"what": "box F1 (IoU >= 0.5) of seedmap detect on simulated grain photos, default settings",
@@ -158,12 +163,14 @@ def main() -> None:
             for dom in a.compare_domain:
                 r[f"domain={dom}"] = detect_and_score(folder, gt, names, work, f"{tag}_{dom}", "--set",
                                                       f"cnn.domain={dom}")
+            for k, o in enumerate(a.compare_set):
+                r[o] = detect_and_score(folder, gt, names, work, f"{tag}_set{k}", "--set", o)
             res["sets"][tag] = r
             print(tag, {k: (v["f1"], v["precision"], v["recall"]) for k, v in r.items() if isinstance(v, dict)})
         # fine-tunes: on the mixed held-out set (many setups), and on each one-setup set (a user's case)
         extra = a.finetune_args.split()
         res["finetune"] = finetune(a.heldout, a.finetune_n, extra, work, "mixed")
-        res["setups"] = [finetune(f, a.finetune_n, extra, work, f"setup{i}") for i, f in enumerate(a.setup)]
+        res["setups"] = [finetune(f, a.finetune_n, extra, work, f"setup{i}", a.compare_set) for i, f in enumerate(a.setup)]
         if res["setups"]:
             res["setups_mean"] = {k: round(float(np.mean([r[k]["f1"] for r in res["setups"]])), 4)
                                   for k in ("before", "after")}

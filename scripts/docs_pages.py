@@ -525,10 +525,12 @@ def page_photos(cmds: dict[str, str]) -> tuple[str, str] | None:
                  "Each set is one user's setup (`seedmap simulate photos --split heldout --set setup=true`): one "
                  "held-out background, light and seed lot. `seedmap train fast-cnn` with its defaults on the first "
                  f"{len(st[0]['train_images'])} labelled photos, `seedmap detect --weights` on the others.\n",
-                 table(["setup (background, light, varieties)", "photos tested", "F1 out of the box", "F1 after",
+                 table(["setup (background, light, varieties)", "photos tested", "F1 out of the box",
+                        *[f"F1 out of the box, {o}" for o in (st[0].get("before_set") or {})], "F1 after",
                         "precision after", "recall after", "fine-tune wall s", "CPU s"],
                        [[", ".join([x["setup"]["bg"], x["setup"]["light"], "+".join(x["setup"]["varieties"])])
                          if x.get("setup") else x["folder"], num(x["test_images"]), num(x["before"]["f1"]),
+                         *[num(v["f1"]) for v in (x.get("before_set") or {}).values()],
                          num(x["after"]["f1"]), num(x["after"]["precision"]), num(x["after"]["recall"]),
                          num(x["wall_s"]), num(x["cpu_s"])] for x in st])]
     ft = d.get("finetune")
