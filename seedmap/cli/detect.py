@@ -30,8 +30,9 @@ def detect_cmd(
 ) -> None:
     """Detect seeds (boxes, ellipses, keypoints) in every frame or image: JSON lines + COCO JSON (+ overlays).
 
-    The fast detector estimates the seeds' size (once per dataset, per image of a folder) and resizes the images
-    when it differs from the network's; to set it: --set cnn.seed_px=N (px) or --set cnn.scale=F."""
+    The fast detector estimates the seeds' size (once per dataset, per image of a folder, or once per folder with
+    --set cnn.scale_per=folder) and resizes the images when it differs from the network's; to set it:
+    --set cnn.seed_px=N (px) or --set cnn.scale=F."""
     from seedmap.config import load_config
     from seedmap.detect import is_oracle_detector
     from seedmap.detect.run import DetectRunConfig, run_detect
@@ -78,11 +79,12 @@ def scale_summary(out: Path) -> str:
            "network": "set by the network's images_seed_px"}[meta["scale_source"]]
     images = json.loads((out / COCO_NAME).read_text(encoding="utf-8"))["images"]
     per = [im for im in images if "cnn_scale" in im]
-    if len(per) > 1:  # photos: one estimate each
+    if len({(im["seed_px"], im["cnn_scale"]) for im in per}) > 1:  # photos: one estimate each
         px = sorted(im["seed_px"] for im in per if im["seed_px"] is not None)
         sc = sorted(im["cnn_scale"] for im in per)
         size = f"{px[0]:.3g}-{px[-1]:.3g} px" if px else "no seeds found"
         return f"seed size ({how}, per image): {size}; network input scale {sc[0]:.3g}-{sc[-1]:.3g}"
     px = meta["seed_px_estimate"] if meta["scale_source"] == "auto" else meta["seed_px"]
     size = f"{px:.3g} px" if px is not None else "no seeds found"
-    return f"seed size ({how}): {size}; network input scale {meta['cnn_scale']:.3g}"
+    every = f", all {len(per)} images" if len(per) > 1 else ""
+    return f"seed size ({how}{every}): {size}; network input scale {meta['cnn_scale']:.3g}"
