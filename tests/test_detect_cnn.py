@@ -152,3 +152,14 @@ def test_training_can_start_from_shipped_weights(cnn_range, tmp_path):
         train_cnn([cnn_range.root], tmp_path / "o2", None,
                   CnnTrainConfig(steps=1, init_weights=str(tmp_path / "none.onnx")), progress=False)
     assert not (tmp_path / "o2").exists()  # a bad --init leaves no empty output folder behind
+
+
+def test_gated_tiles_run_as_runs_of_neighbours_along_a_row():
+    from seedmap.detect.cnn import tile_runs
+
+    tiles = np.array([[0, 0], [0, 1], [0, 2], [0, 4], [1, 0], [2, 5], [2, 6], [3, 6]])
+    assert tile_runs(tiles).tolist() == [[0, 0, 3], [0, 4, 1], [1, 0, 1], [2, 5, 2], [3, 6, 1]]
+    assert tile_runs(np.zeros((0, 2), np.int64)).shape == (0, 3)
+    runs = tile_runs(tiles)  # every tile in exactly one run
+    back = [(ty, tx + k) for ty, tx, n in runs for k in range(n)]
+    assert back == [tuple(t) for t in tiles.tolist()]
