@@ -86,6 +86,17 @@ def _row(res: dict, mode: str, m: SeedMatcher, fa, fb, b: StereoDetections, t_st
     print(row, flush=True)
 
 
+def _cpu_model() -> str | None:
+    """The CPU's model name (Linux ``/proc/cpuinfo``; None elsewhere): timings from different CPUs do not compare."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return None
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="fewer repetitions and frames")
@@ -116,7 +127,8 @@ def main() -> None:
             bf.knnMatch(da, db, k=2)
 
     t_sift, c_sift = _time2(sift_match, reps)
-    res = {"machine": platform.processor() or platform.machine(), "image": [calib.width, calib.height],
+    res = {"machine": platform.processor() or platform.machine(), "cpu_model": _cpu_model(),
+           "image": [calib.width, calib.height],
            "baseline_sift_bf_stereo_s": t_sift, "baseline_sift_bf_stereo_cpu_s": c_sift, "association": []}
     for mode in ("none", "field"):
         cfg = SemanticConfig(refine=mode, temporal_prediction=mode != "none")

@@ -290,7 +290,8 @@ def page_slam(cmds: dict[str, str]) -> tuple[str, str] | None:
     for st in d.get("stages", []):
         la = st.get("load_average")
         busy = f", load average {num(la[0], 2)} → {num(la[1], 2)}" if la else ""
-        body += [f"\n**Whole pipeline per stage on `{st['dataset']}`** (wall ms per frame, {st['cpu_count']} cores{busy}; "
+        cpu = f" of {d['cpu_model']}" if d.get("cpu_model") else ""
+        body += [f"\n**Whole pipeline per stage on `{st['dataset']}`** (wall ms per frame, {st['cpu_count']} cores{cpu}{busy}; "
                  "with the prefetch thread decode and detection overlap the rest, so the stages add up to more than "
                  f"the wall time; ORB-SLAM3: {st['orbslam3']})\n", _stage_table(st)]
     if ln := load("bench_slam_length.json"):
