@@ -111,8 +111,8 @@ def glance() -> str:
                         f"`seedmap train fast-cnn` on {len(st[0]['train_images'])} of their photos")
             rows.append(["seed detection in simulated grain photos", txt, "[photos](docs/results/photos.md)"])
     if d := load("bench_detect.json"):
-        one = _row_named(d["rows"], "fast-cnn (1 onnxruntime thread, gated tiles)")
-        pair = _row_named(d["rows"], "fast-cnn stereo frame (left and right concurrently")
+        one = _row_named(d["rows"], "fast (1 onnxruntime thread, gated tiles)")
+        pair = _row_named(d["rows"], "fast stereo frame (left and right concurrently")
         if one and pair:
             rows.append(["detection speed, `fast`",
                          f"{num(one['cpu_ms_1thread'])} ms CPU per {one['width']}×{one['height']} image on one core; "
