@@ -16,7 +16,7 @@ Fine-tunes run on the mixed held-out set (many setups in ten photos) and on each
 ten photos of it train, the other twenty are scored).
 
 ``--compare-domain field`` also scores the field network on the same photos (what the photos got before);
-``--compare-set KEY=VALUE`` the shipped network with that setting (e.g. ``cnn.scale_per=folder``) on every set.
+``--compare-set KEY=VALUE`` the shipped network with that setting (e.g. ``cnn.scale=folder``) on every set.
 """
 
 from __future__ import annotations

@@ -159,7 +159,7 @@ def test_scale_config_accepts_auto_and_numbers(value, scale):
 
 @pytest.mark.parametrize("value", ["big", "0", "-1", "5", "true"])
 def test_bad_scale_values_are_one_line_config_errors(value, tmp_path, monkeypatch, capsys, frame):
-    with pytest.raises(ConfigError, match="auto or a number"):
+    with pytest.raises(ConfigError, match="auto, folder or a number"):
         make_detector("fast", overrides=[f"cnn.scale={value}"])
     p = tmp_path / "a.png"
     cv2.imwrite(str(p), np.zeros((64, 64, 3), np.uint8))

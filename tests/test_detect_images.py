@@ -170,7 +170,7 @@ def test_seed_px_and_scale_together_or_too_small_seeds_are_config_errors():
 
 
 def test_one_seed_size_per_folder_is_the_median_of_the_photos_estimates(tmp_path, monkeypatch, capsys):
-    """``cnn.scale_per=folder``: every photo runs at one seed size, the median of what each photo alone gives
+    """``cnn.scale=folder``: every photo runs at one seed size, the median of what each photo alone gives
     (a fixed camera), near the true size; the default keeps each photo's own estimate."""
     from seedmap.sim.photos.compose import render_photo
 
@@ -182,7 +182,7 @@ def test_one_seed_size_per_folder_is_the_median_of_the_photos_estimates(tmp_path
     own, folder = tmp_path / "own", tmp_path / "folder"
     assert run_cli(["detect", d, "--out", own], monkeypatch) == 0
     capsys.readouterr()
-    assert run_cli(["detect", d, "--out", folder, "--set", "cnn.scale_per=folder"], monkeypatch) == 0
+    assert run_cli(["detect", d, "--out", folder, "--set", "cnn.scale=folder"], monkeypatch) == 0
     assert "seed size (estimated, all 5 images)" in capsys.readouterr().out
     est = [im["seed_px"] for im in json.loads((own / "detections_coco.json").read_text())["images"]]
     assert sum(e is not None for e in est) >= 3

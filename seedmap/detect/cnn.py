@@ -97,10 +97,10 @@ def fixed_scale(cfg: CnnConfig, operating_px: float, images_seed_px: float | Non
     fine-tuned on images of a recorded seed size (``network``: ``operating_px / images_seed_px``); ``(None, "auto")``
     when the scale is to be estimated from the images."""
     if cfg.seed_px is not None:
-        if cfg.scale != "auto" and float(cfg.scale) != 1.0:
+        if cfg.scale not in ("auto", "folder") and float(cfg.scale) != 1.0:
             raise ConfigError(f"set cnn.scale ({cfg.scale:g}) or cnn.seed_px ({cfg.seed_px:g}), not both")
         return _bounded(float(operating_px) / float(cfg.seed_px), "cnn.seed_px", cfg.seed_px, operating_px), "seed_px"
-    if cfg.scale != "auto":
+    if cfg.scale not in ("auto", "folder"):
         return float(cfg.scale), "scale"
     if images_seed_px:
         return _bounded(float(operating_px) / float(images_seed_px), "the network's images_seed_px", images_seed_px,

@@ -62,11 +62,10 @@ class CnnConfig(ConfigModel):
     #: tile side (px, even) the gated network runs on; 0 = the whole image in one pass
     tile: int = 48
     #: ``auto`` = estimate the seeds' size on the first image of a sequence (each photo of a folder) and resize when
-    #: it lies outside the network's band; a number = run the network on the image resized by it (0-4]
-    scale: Union[Literal["auto"], float] = "auto"
-    #: ``auto`` on a folder of photos: ``image`` = each photo's own estimate; ``folder`` = one seed size for the whole
-    #: folder, the median of the estimates on up to FOLDER_SAMPLE photos spread over it (a fixed camera or scanner)
-    scale_per: Literal["image", "folder"] = "image"
+    #: it lies outside the network's band; ``folder`` = as ``auto``, but one size for a whole folder of photos (a
+    #: fixed camera or scanner): the median estimate of up to FOLDER_SAMPLE photos spread over it; a number = run
+    #: the network on the image resized by it (0-4]
+    scale: Union[Literal["auto", "folder"], float] = "auto"
     #: the seeds' typical diameter (px, geometric mean of a seed's box sides) in your images: sets the scale to the
     #: network's training seed size / seed_px (TRAINED_SEED_PX, or the size a ``seedmap train fast-cnn`` network
     #: records); None = use ``scale``
@@ -86,17 +85,17 @@ class CnnConfig(ConfigModel):
     @field_validator("scale", mode="before")
     @classmethod
     def _scale(cls, v: object) -> object:
-        """``auto`` or a number in (0, 4]."""
-        if isinstance(v, str) and v.strip().lower() == "auto":
-            return "auto"
+        """``auto``, ``folder`` or a number in (0, 4]."""
+        if isinstance(v, str) and v.strip().lower() in ("auto", "folder"):
+            return v.strip().lower()
         try:
             if isinstance(v, bool):
                 raise TypeError
             f = float(v)  # type: ignore[arg-type]
         except (TypeError, ValueError):
-            raise ValueError(f"must be auto or a number in (0, 4], got {v!r}") from None
+            raise ValueError(f"must be auto, folder or a number in (0, 4], got {v!r}") from None
         if not 0.0 < f <= 4.0:
-            raise ValueError(f"must be auto or a number in (0, 4], got {v!r}")
+            raise ValueError(f"must be auto, folder or a number in (0, 4], got {v!r}")
         return f
 
 

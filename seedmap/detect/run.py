@@ -20,7 +20,7 @@ from seedmap.io.images import write_png
 from seedmap.io.photos import PhotoSet, is_photo_input
 from seedmap.progress import track
 
-#: ``cnn.scale_per = folder``: the folder's seed size is the median estimate on this many photos spread over it
+#: ``cnn.scale = folder``: the folder's seed size is the median estimate on this many photos spread over it
 FOLDER_SAMPLE = 9
 
 
@@ -46,7 +46,7 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
     ``out`` gets ``detections.jsonl`` + ``detections_coco.json`` (see :mod:`seedmap.detect.io`),
     ``config.yaml`` (the resolved detector config), ``meta.json`` (detector name, oracle flag, timing, the
     ``fast`` detector's input scale, seed size and how it was set: a stereo sequence's from its first frame, a photo
-    folder's from its last photo (with ``cnn.scale_per = folder`` the folder's); each photo's own is in its ``detections_coco.json`` image entry) and, with
+    folder's from its last photo (with ``cnn.scale = folder`` the folder's); each photo's own is in its ``detections_coco.json`` image entry) and, with
     ``overlay``, ``overlay/{left,right}/NNNNNN.png`` (images: ``overlay/NAME.png``) with the ellipses drawn. Images keep their names relative to ``dataset``.
     ``inputs``: more files the command read (``--config``, ``--weights``): ``out`` is never one of them.
     """
@@ -110,7 +110,7 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
     over = stems if len(set(stems)) == len(stems) else [n if n.endswith(".png") else n + ".png" for n in photos.names]
     records, t_det = [], 0.0
     reset = getattr(det, "reset_scale", None)  # the fast detector: a fresh seed-size estimate per photo
-    if reset is not None and getattr(det, "scale_source", None) == "auto" and det.cfg.scale_per == "folder":
+    if reset is not None and getattr(det, "scale_source", None) == "auto" and det.cfg.scale == "folder":
         t0 = time.perf_counter()
         det.set_seed_px_estimate(folder_seed_px(det, photos, idx, progress))
         t_det += time.perf_counter() - t0
@@ -133,7 +133,7 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
 
 
 def folder_seed_px(det: Detector, photos: PhotoSet, idx: list[int], progress: bool = False) -> float | None:
-    """``cnn.scale_per = folder``: the median seed size (px) the ``fast`` detector ``det`` estimates on up to
+    """``cnn.scale = folder``: the median seed size (px) the ``fast`` detector ``det`` estimates on up to
     FOLDER_SAMPLE of the photos ``idx``, evenly spread (photos without seeds found do not count; None when no photo
     gave an estimate)."""
     pick = [idx[int(k)] for k in np.unique(np.linspace(0, len(idx) - 1, min(FOLDER_SAMPLE, len(idx))).round())]
