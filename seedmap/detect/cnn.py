@@ -25,7 +25,7 @@ import numpy as np
 from seedmap.detect.autoscale import SCORE_SIZE, UNRECORDED_SCORE_SIZE, estimate_seed_px
 from seedmap.detect.base import Detector, check_image, logit, map_to_input, register_detector
 from seedmap.detect.cnn_refine import CnnRefiner, default_cnn_refiner_path
-from seedmap.detect.config import TRAINED_SEED_PX, CnnConfig
+from seedmap.detect.config import ESTIMATED_SCALES, TRAINED_SEED_PX, CnnConfig
 from seedmap.detect.kernels import INPUT_LUT, window_batch
 from seedmap.detect.runtime import WEIGHTS_DIR, load_session, shipped_or_path
 from seedmap.errors import ConfigError
@@ -54,10 +54,15 @@ SHIPPED_NETWORKS = {"field": "fast_cnn.onnx", "arm": "fast_cnn_arm.onnx", "photo
 SHIPPED_CUES = {"fast_cnn_photo.onnx": "score"}
 
 
+def is_shipped(path: str | Path) -> bool:
+    """True when ``path`` is a network file shipped with seedmap (in seedmap/detect/weights/)."""
+    return Path(path).resolve().parent == WEIGHTS_DIR.resolve()
+
+
 def network_scale_cue(path: str | Path, info: dict) -> str:
     """The seed-size cue of the network at ``path`` whose ONNX info is ``info``."""
-    shipped = Path(path).resolve().parent == WEIGHTS_DIR.resolve()
-    return str(info.get("scale_cue") or (SHIPPED_CUES.get(Path(path).name) if shipped else None) or "boxes")
+    shipped = SHIPPED_CUES.get(Path(path).name) if is_shipped(path) else None
+    return str(info.get("scale_cue") or shipped or "boxes")
 
 
 def network_score_size(path: str | Path, info: dict) -> float:
@@ -66,7 +71,7 @@ def network_score_size(path: str | Path, info: dict) -> float:
     network, else UNRECORDED_SCORE_SIZE."""
     if info.get("score_size"):
         return float(info["score_size"])
-    return SCORE_SIZE if Path(path).resolve().parent == WEIGHTS_DIR.resolve() else UNRECORDED_SCORE_SIZE
+    return SCORE_SIZE if is_shipped(path) else UNRECORDED_SCORE_SIZE
 
 
 def default_cnn_path(domain: str = "field") -> Path:
@@ -97,10 +102,10 @@ def fixed_scale(cfg: CnnConfig, operating_px: float, images_seed_px: float | Non
     fine-tuned on images of a recorded seed size (``network``: ``operating_px / images_seed_px``); ``(None, "auto")``
     when the scale is to be estimated from the images."""
     if cfg.seed_px is not None:
-        if cfg.scale not in ("auto", "folder") and float(cfg.scale) != 1.0:
+        if cfg.scale not in ESTIMATED_SCALES and float(cfg.scale) != 1.0:
             raise ConfigError(f"set cnn.scale ({cfg.scale:g}) or cnn.seed_px ({cfg.seed_px:g}), not both")
         return _bounded(float(operating_px) / float(cfg.seed_px), "cnn.seed_px", cfg.seed_px, operating_px), "seed_px"
-    if cfg.scale not in ("auto", "folder"):
+    if cfg.scale not in ESTIMATED_SCALES:
         return float(cfg.scale), "scale"
     if images_seed_px:
         return _bounded(float(operating_px) / float(images_seed_px), "the network's images_seed_px", images_seed_px,

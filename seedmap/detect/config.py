@@ -47,6 +47,10 @@ PHOTO_DEFAULTS = {"cnn": {"domain": "photo", "tile": 0}}
 CNN_THRESHOLD = 0.45
 
 
+#: the ``cnn.scale`` values that estimate the seed size from the images (a number sets the scale)
+ESTIMATED_SCALES = ("auto", "folder")
+
+
 class CnnConfig(ConfigModel):
     """The ``fast`` detector (seedmap.detect.cnn): the small CNN on gated tiles, in onnxruntime, and its refiner."""
 
@@ -86,7 +90,7 @@ class CnnConfig(ConfigModel):
     @classmethod
     def _scale(cls, v: object) -> object:
         """``auto``, ``folder`` or a number in (0, 4]."""
-        if isinstance(v, str) and v.strip().lower() in ("auto", "folder"):
+        if isinstance(v, str) and v.strip().lower() in ESTIMATED_SCALES:
             return v.strip().lower()
         try:
             if isinstance(v, bool):
