@@ -70,19 +70,29 @@ def test_seeded_and_independent_of_count(photos, tmp_path):
         assert a.read_bytes() == (again / a.name).read_bytes()
 
 
-def test_heldout_split_draws_only_unseen_surfaces():
-    held = {k for k, (s, _) in BACKGROUNDS.items() if s == "heldout"}
+@pytest.mark.parametrize("split", ["heldout", "validation"])
+def test_unseen_splits_draw_only_their_own_surfaces(split):
+    """validation and heldout: backgrounds, lights and varieties of their own, disjoint from training and from each
+    other (the panicle scenes are shared); training photos never draw an unseen condition."""
+    own = {k for k, (s, _) in BACKGROUNDS.items() if s == split}
     train = {k for k, (s, _) in BACKGROUNDS.items() if s == "train"}
-    assert held and train and not held & train
-    assert {"sieve", "tablecloth", "burlap", "gravel"} <= held and {"pebbles", "mottled", "cloth"} <= train
-    assert {k for k, v in VARIETIES.items() if v[0] == "heldout"}
-    assert {k for k, s in LIGHTS.items() if s == "heldout"}
-    seen = set()
-    for s in range(12):
-        ph = render_photo(np.random.default_rng(s), "heldout", (160, 200), (5.0, 8.0), 0.0)
-        seen.add(ph.conditions["background"])
-        assert ph.conditions["background"] not in train - {"canopy", "night", "sky"}
-    assert seen & held
+    other = {k for k, (s, _) in BACKGROUNDS.items() if s not in (split, "train")}
+    assert own and train and other and not own & train and not own & other
+    assert {"sieve", "tablecloth", "burlap", "gravel"} <= set(BACKGROUNDS) - train
+    assert {"pebbles", "mottled", "cloth"} <= train
+    own_vars = {k for k, v in VARIETIES.items() if v[0] == split}
+    own_lights = {k for k, s in LIGHTS.items() if s == split}
+    assert own_vars and own_lights
+    seen, lights, vars_ = set(), set(), set()
+    for s in range(24):
+        c = render_photo(np.random.default_rng(s), split, (160, 200), (5.0, 8.0), 0.0).conditions
+        seen.add(c["background"])
+        lights.add(c["light"])
+        vars_ |= set(c["varieties"])
+        assert c["background"] in own | {"canopy", "night", "sky"}
+        assert LIGHTS[c["light"]] in ("train", split)
+        assert all(VARIETIES[v][0] in ("train", split) for v in c["varieties"])
+    assert seen & own and lights & own_lights and vars_ & own_vars
     for s in range(12):
         ph = render_photo(np.random.default_rng(s), "train", (160, 200), (5.0, 8.0), 0.0)
         assert ph.conditions["background"] in train
@@ -127,3 +137,25 @@ def test_training_photos_vary_white_balance_and_exposure_held_out_ones_do_not():
     assert 0 < sum(dims) < 24
     assert not any(render_photo(np.random.default_rng(s), "heldout", (160, 200), (5.0, 8.0), 0.0).conditions["dim"]
                    for s in range(8))
+
+
+def test_random_patterns_repeat_at_the_seed_scale():
+    """The training ``pattern`` background: a geometric motif whose repeat (the longest period with at least a
+    quarter of the strongest one's power, shorter strong ones being its harmonics; the folds' shading left
+    out) lies within 0.4-8 seed diameters
+    (checks repeat over two periods), in varied colours."""
+    seed_px = 10.0
+    periods, colours = [], []
+    for s in range(10):
+        img = BACKGROUNDS["pattern"][1](np.random.default_rng(s), 256, 256, seed_px)
+        g = img.mean(axis=2)
+        p = np.abs(np.fft.rfft2(g - g.mean())) ** 2
+        fyy = np.fft.fftfreq(256)[:, None] * 256
+        p[np.hypot(fyy, np.arange(p.shape[1])[None, :]) < 2.5] = 0.0  # the folds' shading, not the motif
+        ky, kx = np.nonzero(p >= 0.25 * p.max())
+        fy = np.where(ky <= 128, ky, ky - 256)
+        periods.append(256 / np.hypot(fy, kx).min())
+        colours.append(img.reshape(-1, 3).mean(axis=0))
+    periods = np.array(periods)
+    assert np.all((periods >= 0.4 * seed_px * 0.9) & (periods <= 8 * seed_px * 1.1)), periods
+    assert np.ptp(np.array(colours), axis=0).max() > 0.2

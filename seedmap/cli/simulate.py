@@ -106,8 +106,10 @@ def simulate_photos_cmd(
     out: Path = typer.Option(..., "--out", "-o", help="Folder to create: images + labels.json (COCO)."),
     count: Optional[int] = typer.Option(None, "--count", "-n", help="Number of photos (default 20)."),
     seed: Optional[int] = typer.Option(None, "--seed", help="Random seed (photo i depends only on it and i)."),
-    split: Optional[str] = typer.Option(None, "--split", help="train (default) or heldout: backgrounds, lights and "
-                                                              "varieties never used for training."),
+    split: Optional[str] = typer.Option(None, "--split", help="train (default), validation or heldout: the "
+                                                              "last two draw backgrounds, lights and varieties never "
+                                                              "used for training (validation to choose settings, "
+                                                              "heldout to measure)."),
     config: Optional[Path] = ConfigOpt,
     set_: Optional[List[str]] = SetOpt,
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace photos seedmap simulated."),

@@ -3,8 +3,8 @@
 ``seedmap simulate photos`` writes a folder a user's own labelled photos would look like: the images
 (``00000.jpg`` ...; flatbed scans as PNG) and ``labels.json``, COCO with one annotation per visible seed (box,
 compressed-RLE mask, area). Each image entry also carries ``seed_px`` (median geometric mean of its seeds' box
-sides) and the ``conditions`` it was drawn with. ``split=heldout`` draws backgrounds, lights and varieties that
-``split=train`` never uses. Method: docs/method/photos.md.
+sides) and the ``conditions`` it was drawn with. ``split=validation`` and ``split=heldout`` draw backgrounds, lights
+and varieties that ``split=train`` never uses (two disjoint sets: one to choose with, one to measure). Method: docs/method/photos.md.
 """
 
 from __future__ import annotations
@@ -35,8 +35,9 @@ class PhotoSimConfig(ConfigModel):
     seed: int = 0
     #: number of photos
     count: int = Field(20, ge=1)
-    #: ``train`` conditions, or ``heldout``: backgrounds, lights and varieties never used for training
-    split: Literal["train", "heldout"] = "train"
+    #: ``train`` conditions; ``validation`` or ``heldout``: backgrounds, lights and varieties never used for training,
+    #: the first for choosing between networks and settings, the second for measuring them
+    split: Literal["train", "validation", "heldout"] = "train"
     #: long side of a photo (px), drawn uniformly from this range
     long_side: tuple[int, int] = (640, 1280)
     #: seed diameter (px), drawn log-uniformly from this range per photo

@@ -1,7 +1,7 @@
 """One simulated grain photo: a background, lit seeds and look-alikes laid out on it, seen through a camera.
 
 :func:`render_photo` draws a photo's conditions (background, light, varieties, layout, camera) from its random
-generator and the split (``train`` or ``heldout``), renders it and returns the image, the instance map of the
+generator and the split (``train``, ``validation`` or ``heldout``), renders it and returns the image, the instance map of the
 visible seeds and the conditions. Layouts: ``loose`` grain on a surface (scattered or clumped), a ``pile``
 (overlapping), a ``panicle`` (seeds packed around branches, glumes beneath) in front of canopy, sky or night.
 Method and parameters: docs/method/photos.md.
@@ -24,11 +24,12 @@ Rng = np.random.Generator
 PANICLE_BACKGROUNDS = ("canopy", "night", "sky")
 #: a seed is labelled when at least this fraction of its footprint is visible
 MIN_VISIBLE_FRACTION = 0.4
-#: held-out photos: probability that the light, and each variety, is one never trained on
+#: validation and held-out photos: probability that the light, and each variety, is one of the split's own (never
+#: trained on)
 HELDOUT_P = 0.5
 #: lights: name -> split
 LIGHTS = {"flash": "train", "daylight": "train", "overcast": "train", "scanner": "train", "window": "train",
-          "lamp": "heldout", "dusk": "heldout"}
+          "fluorescent": "validation", "ring": "validation", "lamp": "heldout", "dusk": "heldout"}
 #: training photos: probability of a strong colour cast (a white balance left on the wrong light) ...
 CAST_P = 0.35
 #: ... and of a dim exposure (under-exposed, noisy)
@@ -53,6 +54,10 @@ def make_light(name: str, rng: Rng) -> tuple[Light, np.ndarray]:
         return Light(towards(rng.uniform(15, 40)), 0.25, 0.9, 0.25, 15.0, 0.6, 0.25), wb
     if name == "scanner":
         return Light(np.array([0.0, 0.3, 0.954]), 0.35, 0.75, 0.3, 15.0, 0.2, 0.15), np.ones(3)
+    if name == "fluorescent":  # overhead tubes: diffuse, soft shadows, a green cast
+        return Light(towards(rng.uniform(60, 85)), 0.45, 0.6, 0.15, 12.0, 0.4, 0.3), wb * [0.9, 1.06, 0.96]
+    if name == "ring":  # a ring light around the lens: frontal, soft, almost no shadow
+        return Light(np.array([0.0, 0.0, 1.0]), 0.3, 0.75, 0.25, 10.0, 0.15, 0.3), wb
     if name == "lamp":  # a desk lamp low at the side: warm, long hard shadows
         return Light(towards(rng.uniform(12, 28)), 0.12, 1.0, 0.4, 25.0, 0.7, 0.04), np.array([1.35, 1.0, 0.6])
     if name == "dusk":  # dim, cool, noisy
@@ -177,7 +182,7 @@ def _camera(rng: Rng, lin: np.ndarray, wb: np.ndarray, d: float, light: str, dim
 
 def draw_conditions(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tuple[float, float]) -> dict:
     """A photo's background, size (w, h), seed diameter ``d`` (px), light and grain varieties, drawn from ``rng``."""
-    held = split == "heldout"
+    held = split != "train"
     bgs = backgrounds(split) + (list(PANICLE_BACKGROUNDS) if held else [])
     bg = bgs[int(rng.integers(len(bgs)))]
     ls = int(rng.integers(long_side[0], long_side[1] + 1))
@@ -191,9 +196,9 @@ def draw_conditions(rng: Rng, split: str, long_side: tuple[int, int], seed_px: t
     else:
         pool = [k for k, s in LIGHTS.items() if s == "train" and k != "scanner"]
         if held and rng.random() < HELDOUT_P:
-            pool = [k for k, s in LIGHTS.items() if s == "heldout"]
+            pool = [k for k, s in LIGHTS.items() if s == split]
         light = pool[int(rng.integers(len(pool)))]
-    tv, hv = varieties("train"), varieties("heldout")
+    tv, hv = varieties("train"), varieties(split)
     vars_ = []
     for _ in range(int(rng.integers(1, 4))):
         pool = hv if held and rng.random() < HELDOUT_P else tv
@@ -207,7 +212,7 @@ SETUP_SIZE_JITTER = 1.1
 
 def render_photo(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tuple[float, float],
                  empty_fraction: float, setup: dict | None = None) -> Photo:
-    """One photo of ``split`` (train | heldout) with its conditions drawn from ``rng`` (module docstring), or, with
+    """One photo of ``split`` (train | validation | heldout) with its conditions drawn from ``rng`` (module docstring), or, with
     ``setup`` (:func:`draw_conditions` of the setup), that background, light and those varieties, its seeds within
     SETUP_SIZE_JITTER of the setup's size."""
     c = draw_conditions(rng, split, long_side, seed_px)

@@ -2,8 +2,8 @@
 
 An object is an ellipse-footprint solid (:class:`Thing`) drawn into the lit image with per-pixel normals, so it
 takes the light of its photo (:class:`Light`: direction, ambient, specular) and leaves a footprint in the instance
-map. Seed varieties are registered in :data:`VARIETIES` with their split, like the backgrounds: ``heldout``
-varieties are never trained on. Method and the reasoning behind the parameters: docs/method/photos.md.
+map. Seed varieties are registered in :data:`VARIETIES` with their split, like the backgrounds: ``validation`` and
+``heldout`` varieties are never trained on. Method and the reasoning behind the parameters: docs/method/photos.md.
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ VARIETIES: dict[str, tuple[str, tuple[float, float, float], str]] = {
     "dark": ("train", (0.16, 0.11, 0.09), "plain"),
     "discoloured": ("train", (0.74, 0.6, 0.42), "blotch"),
     "mouldy": ("train", (0.8, 0.72, 0.55), "mould"),
+    "green": ("validation", (0.55, 0.62, 0.33), "plain"),
+    "grey": ("validation", (0.62, 0.6, 0.56), "blotch"),
     "purple": ("heldout", (0.45, 0.2, 0.3), "plain"),
     "orange": ("heldout", (0.92, 0.52, 0.2), "germ"),
     "speckled": ("heldout", (0.84, 0.74, 0.55), "speckle"),

@@ -3,8 +3,8 @@
 Every generator returns an albedo image ``(h, w, 3)`` float32 in [0, 1] at the photo's resolution, scaled to the
 image's seed size ``seed_px`` where the texture has a physical scale (a weave's threads, pebbles, leaves).
 Generators are registered in :data:`BACKGROUNDS` with the split they belong to: ``train`` backgrounds are what the
-shipped networks see, ``heldout`` ones are never trained on and measure how detection copes with a surface it
-has not seen. The reasoning behind each and its parameters: docs/method/photos.md.
+shipped networks see; ``validation`` and ``heldout`` ones are never trained on: the first choose between networks
+and settings, the second measure how detection copes with a surface it has not seen. The reasoning behind each and its parameters: docs/method/photos.md.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ BACKGROUNDS: dict[str, tuple[str, Callable[[Rng, int, int, float], np.ndarray]]]
 
 
 def background(name: str, split: str):  # noqa: ANN201 - decorator
-    """Register a background generator under ``name`` in ``split`` (train or heldout)."""
+    """Register a background generator under ``name`` in ``split`` (train, validation or heldout)."""
 
     def deco(fn: Callable) -> Callable:
         BACKGROUNDS[name] = (split, fn)
@@ -246,6 +246,47 @@ def mottled(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     return np.clip(img * (0.9 + 0.1 * noise(rng, h, w, 2.0))[..., None], 0, 1).astype(np.float32)
 
 
+def _lattice(rng: Rng, h: int, w: int, period: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates in units of ``period`` along a random direction: ``(u, v)``."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    a = rng.uniform(0, np.pi) if rng.random() < 0.6 else 0.0
+    return (xx * np.cos(a) + yy * np.sin(a)) / period, (-xx * np.sin(a) + yy * np.cos(a)) / period
+
+
+def _motif(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Coverage in [0, 1] (antialiased) of one random geometric motif: stripes, grid lines, checks or a dot
+    lattice, period 0.4-4 seed diameters."""
+    p = max(2.5, seed_px * float(np.exp(rng.uniform(np.log(0.4), np.log(4.0)))))
+    u, v = _lattice(rng, h, w, p)
+    kind = int(rng.integers(4))
+    if kind == 0:  # stripes
+        sd = (rng.uniform(0.1, 0.6) / 2 - np.abs(u - np.round(u))) * p
+    elif kind == 1:  # grid lines: graph paper, a cutting mat
+        half = rng.uniform(0.03, 0.2) / 2
+        sd = (half - np.minimum(np.abs(u - np.round(u)), np.abs(v - np.round(v)))) * p
+    elif kind == 2:  # checks
+        sd = np.minimum(np.abs(u - np.round(u)), np.abs(v - np.round(v))) * p
+        sd = np.where((np.floor(u) + np.floor(v)) % 2 == 0, sd, -sd)
+    else:  # dots on a square or staggered lattice
+        vs = v + (0.5 * np.round(u) if rng.random() < 0.5 else 0.0)
+        fu, fv = u - np.round(u), vs - np.round(vs)
+        sd = (rng.uniform(0.12, 0.42) - np.sqrt(fu * fu + fv * fv)) * p
+    return np.clip(sd + 0.5, 0, 1).astype(np.float32)
+
+
+@background("pattern", "train")
+def pattern(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Printed or moulded geometric patterns drawn at random: stripes, grid lines, checks or dot lattices, period
+    0.4-4 seed diameters at any angle, in random colours, one motif or two overlaid (graph paper, cutting mats,
+    prints, perforated sheets)."""
+    img = tint(np.ones((h, w), np.float32), random_colour(rng, (0.0, 0.8), (0.3, 0.95)))
+    for _ in range(1 if rng.random() < 0.6 else 2):
+        m = _motif(rng, h, w, seed_px)[..., None] * rng.uniform(0.5, 1.0)
+        img = img * (1 - m) + m * random_colour(rng, (0.0, 0.9), (0.1, 0.95))[None, None]
+    fine = 0.92 + 0.08 * noise(rng, h, w, max(1.5, seed_px * 0.1))
+    return np.clip(img * (fine * _folds(rng, h, w, rng.uniform(0.0, 0.2)))[..., None], 0, 1).astype(np.float32)
+
+
 @background("burlap", "heldout")
 def burlap(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     """Jute sacking: a coarse loose weave with dark gaps, tan (never trained on)."""
@@ -314,3 +355,65 @@ def tablecloth(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     weave = 0.85 + 0.15 * _weave(rng, h, w, max(2.0, seed_px * 0.15), 0.1, False)
     img = (tint(1 - m, c0) + tint(m, c1)) * (weave * _folds(rng, h, w, 0.15))[..., None]
     return np.clip(img, 0, 1).astype(np.float32)
+
+
+@background("cork", "validation")
+def cork(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A cork board or mat: pressed brown granules 0.2-0.8 seed diameters across with dark pores (validation)."""
+    c = np.array([0.6, 0.42, 0.26]) * rng.uniform(0.7, 1.2)
+    img = tint(0.55 + 0.3 * fbm(rng, h, w, seed_px * 2, 3), c)
+    size = (seed_px * 0.2, seed_px * 0.8)
+    n = int(h * w / (np.mean(size) ** 2) * rng.uniform(0.4, 0.9))
+    _blobs(rng, img, n, size, lambda: c * rng.uniform(0.6, 1.35), shade=False)
+    pores = np.clip((noise(rng, h, w, max(1.5, seed_px * 0.25)) - 0.82) * 6, 0, 1)
+    return np.clip(img * (1 - 0.7 * pores)[..., None], 0, 1).astype(np.float32)
+
+
+@background("tiles", "validation")
+def tiles(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Ceramic floor or wall tiles: squares 2-6 seed diameters across, one or two glazes with fine speckle, grout
+    lines 0.1-0.3 seeds wide (validation)."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    a = rng.uniform(0, np.pi / 2) if rng.random() < 0.3 else 0.0
+    p = seed_px * rng.uniform(2.0, 6.0)
+    u = (xx * np.cos(a) + yy * np.sin(a)) / p
+    v = (-xx * np.sin(a) + yy * np.cos(a)) / p
+    g = rng.uniform(0.1, 0.3) * seed_px / p / 2
+    grout = np.maximum(np.abs(u - np.round(u)) < g, np.abs(v - np.round(v)) < g).astype(np.float32)
+    c0 = random_colour(rng, (0.0, 0.6), (0.4, 0.95))
+    c1 = c0 if rng.random() < 0.5 else random_colour(rng, (0.0, 0.6), (0.4, 0.95))
+    which = ((np.floor(u) + np.floor(v)) % 2)[..., None]
+    glaze = tint(np.ones((h, w), np.float32), c0) * (1 - which) + tint(np.ones((h, w), np.float32), c1) * which
+    speck = 0.92 + 0.08 * noise(rng, h, w, max(1.2, seed_px * 0.1))
+    img = glaze * speck[..., None]
+    gc = np.full(3, rng.uniform(0.3, 0.8), np.float32)
+    grout = cv2.GaussianBlur(grout, (0, 0), 0.6)[..., None]
+    return np.clip(img * (1 - grout) + gc * grout, 0, 1).astype(np.float32)
+
+
+@background("felt", "validation")
+def felt(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """Felt or a short-pile carpet: matted fibres, short strokes a quarter to one seed long in every direction, any
+    colour (validation)."""
+    g = np.zeros((h, w), np.float32)
+    n = int(h * w / (seed_px * seed_px) * rng.uniform(3, 8))
+    L = seed_px * rng.uniform(0.25, 1.0)
+    xs, ys = rng.uniform(0, w, n), rng.uniform(0, h, n)
+    ang = rng.uniform(0, np.pi, n)
+    vals = rng.uniform(0.3, 1.0, n)
+    pts = np.stack([np.stack([xs - np.cos(ang) * L / 2, ys - np.sin(ang) * L / 2], 1),
+                    np.stack([xs + np.cos(ang) * L / 2, ys + np.sin(ang) * L / 2], 1)], 1)
+    for q, val in zip(np.round(pts * 4).astype(np.int32), vals):
+        cv2.line(g, tuple(q[0]), tuple(q[1]), float(val), 1, cv2.LINE_AA, shift=2)
+    g = 0.45 + 0.55 * np.clip(cv2.GaussianBlur(g, (0, 0), 0.5), 0, 1)
+    return np.clip(tint(g * _folds(rng, h, w, 0.15), random_colour(rng, (0.1, 0.8), (0.3, 0.9))), 0, 1)
+
+
+@background("basket", "validation")
+def basket(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
+    """A woven basket or rattan mat: flat strips 1-3 seed diameters wide, over and under, straw to brown
+    (validation)."""
+    p = max(4.0, seed_px * rng.uniform(1.0, 3.0))
+    pat = 0.35 + 0.65 * _weave(rng, h, w, p, rng.uniform(0.05, 0.25), bool(rng.random() < 0.4))
+    grain = 0.85 + 0.15 * fbm(rng, h, w, max(1.5, seed_px * 0.15), 2)
+    return tint(pat * grain, np.array([0.78, 0.64, 0.4]) * rng.uniform(0.6, 1.15))
