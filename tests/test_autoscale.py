@@ -201,7 +201,10 @@ def test_the_photo_network_reads_a_grain_photos_seed_size_off_its_scores():
     from seedmap.detect.autoscale import estimate_seed_px
     from seedmap.sim.photos.compose import render_photo
 
-    det = make_detector("fast", overrides=["cnn.domain=photo"])
+    from seedmap.detect.config import PHOTO_DEFAULTS
+
+    # as `seedmap detect` runs photos: the whole image, no tile gate (its brightness test skips dark seeds on paper)
+    det = make_detector("fast", overrides=["cnn.domain=photo", f"cnn.tile={PHOTO_DEFAULTS['cnn']['tile']}"])
     assert network_scale_cue(det.path, det.info) == "score" and det.scale_cue == "score"
     errs = []
     for seed in range(10):  # every photo of the stream, dim and colour-cast ones included; no estimate = error 1
@@ -229,3 +232,45 @@ def test_the_score_cues_multiple_belongs_to_the_network(tmp_path):
     levels = [Level(2.0, 30, 1.0, 0.70, 8.0), Level(1.0, 30, 1.0, 0.90, 8.0), Level(0.5, 30, 1.0, 0.70, 8.0)]
     assert size_from_scores(levels, 8.0, 1.0) == pytest.approx(8.0)  # symmetric scores: the peak at scale 1
     assert size_from_scores(levels, 8.0, 1.3) == pytest.approx(1.3 * 8.0)
+
+
+def test_a_score_network_declares_the_seed_size_at_which_its_estimates_centre_on_labels(tmp_path):
+    """calibrate_seed_px (training from scratch, score cue): a copy of the photo network that declares a seed size
+    30 % too small reads sizes 30 % too small; calibrated on labelled photos, it declares one at which its
+    estimates on other photos centre on their labels again, and close to the shipped network's."""
+    onnx = pytest.importorskip("onnx")
+    from seedmap.detect.cnn import CnnDetector
+    from seedmap.detect.config import CnnConfig
+    from seedmap.detect.labels import CocoSource
+    from seedmap.detect.train_validate import HeldOut, calibrate_seed_px
+    from seedmap.sim.photos import PhotoSimConfig, simulate_photos
+
+    shipped = CnnDetector(CnnConfig(domain="photo", tile=0))
+    m = onnx.load(str(shipped.path))
+    wrong = shipped.trained_seed_px * 0.7
+    for p in m.metadata_props:
+        if p.key == "info":
+            p.value = json.dumps({**json.loads(p.value), "seed_px": wrong})
+    onnx.save(m, str(tmp_path / "wrong.onnx"))
+
+    def photos(seed: int, n: int) -> CocoSource:
+        cfg = PhotoSimConfig(count=n, seed=seed, split="validation", long_side=(320, 400), seed_px=(10.0, 16.0),
+                             empty_fraction=0.0)
+        return CocoSource(simulate_photos(cfg, tmp_path / f"p{seed}", progress=False) / "labels.json", None)
+
+    fit = photos(1, 8)
+    cal = calibrate_seed_px(tmp_path / "wrong.onnx", [HeldOut(coco=fit, indices=tuple(range(len(fit))))])
+    assert cal is not None and cal["images"] >= 5
+    assert cal["median_ratio_before"] == pytest.approx(0.7, abs=0.12)
+    assert cal["seed_px"] == pytest.approx(shipped.trained_seed_px, rel=0.12)
+    assert calibrate_seed_px(tmp_path / "wrong.onnx", [HeldOut(coco=fit, indices=(0, 1, 2))]) is None
+    det = CnnDetector(CnnConfig(domain="photo", tile=0), tmp_path / "wrong.onnx")
+    check = photos(2, 6)
+    ratios = []
+    for k in range(len(check)):
+        li = check[k]
+        b = np.asarray(li.boxes, float).reshape(-1, 4)
+        true = float(np.median(np.sqrt((b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]))))
+        est = estimate_seed_px(det.peaks, li.image, cal["seed_px"], det.scale_cue, det.score_size).seed_px
+        ratios.append(est / true if est else 0.0)
+    assert np.median(ratios) == pytest.approx(1.0, abs=0.12), ratios

@@ -14,7 +14,12 @@ import cv2
 import numpy as np
 import pytest
 
+from seedmap.detect.cnn import SHIPPED_NETWORKS, WEIGHTS_DIR
 from seedmap.detect.config import TRAINED_SEED_PX
+from seedmap.detect.train_validate import network_seed_px
+
+#: the seed size (px) the shipped photo network declares it runs at
+PHOTO_SEED_PX = network_seed_px(WEIGHTS_DIR / SHIPPED_NETWORKS["photo"], TRAINED_SEED_PX["photo"])
 from seedmap.detect.cnn_targets import TrainImage, rescale_targets
 from seedmap.detect.io import coco_from_records
 from seedmap.detect.train_validate import split_coco
@@ -88,7 +93,7 @@ def test_boxes_only_fine_tune_learns_at_the_network_seed_size_and_reports_heldou
     assert m["replay_images"] == REPLAY_PHOTOS and m["config"]["replay"] == 0.5  # rehearsal crops by default
     want = float(np.median(_sides(coco, {coco["images"][k]["id"] for k in tr})))
     assert m["images_seed_px"] == pytest.approx(want)
-    op = TRAINED_SEED_PX["photo"]  # the seed size of the shipped photo network it starts from
+    op = PHOTO_SEED_PX  # the seed size of the shipped photo network it starts from
     assert m["seed_px"] == op and m["labels_scale"] == pytest.approx(op / want)
     # held-out F1 of the network before (the shipped one) and after, on the held-out image's labelled seeds
     n_val = len(_sides(coco, {coco["images"][va[0]]["id"]}))

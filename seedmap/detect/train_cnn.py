@@ -448,7 +448,7 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     from seedmap.detect.config import TRAINED_SEED_PX
-    from seedmap.detect.train_validate import heldout_report, network_seed_px, plan_training
+    from seedmap.detect.train_validate import calibrate_seed_px, heldout_report, network_seed_px, plan_training
 
     init_path = cfg.init_weights if cfg.init_weights else None
     net_seed_px = (float(cfg.seed_px) if cfg.seed_px and not init_path
@@ -569,6 +569,12 @@ def train_cnn(train_sets: list[str | Path], out: str | Path, val_sets: list[str 
             info["images_seed_px"] = plan.images_seed_px
             info["labels_scale"] = plan.scale
     onnx_path = export_onnx(net, out / "fast_cnn.onnx", info)
+    if not init_path and info.get("scale_cue") == "score" and "seed_px" in info:
+        # from scratch: declare the seed size at which its estimates centre on the held-out labels
+        cal = calibrate_seed_px(onnx_path, plan.heldout, cfg.threads)
+        if cal is not None:
+            info["trained_seed_px"], info["seed_px"], info["seed_px_calibration"] = net_seed_px, cal["seed_px"], cal
+            onnx_path = export_onnx(net, out / "fast_cnn.onnx", info)
     metrics = {**info, **heldout_report(onnx_path, init_path, plan, cfg.threads, progress), "history": history}
     atomic_write_text(out / "train_metrics.json", json.dumps(metrics, indent=1))
     return metrics

@@ -208,6 +208,38 @@ def plan_training(train_sets: list, val_sets: list | None, images_root, val_frac
     return TrainPlan(tr, None if val_sets else va, heldout, images_seed_px, scale, scales, fixed)
 
 
+#: held-out COCO images (each with at least PER_IMAGE_MIN_SEEDS labels) the seed-size calibration needs
+CALIBRATION_MIN_IMAGES = 5
+
+
+def calibrate_seed_px(weights: str | Path, heldout: list[HeldOut], threads: int = 1) -> dict | None:
+    """The seed size (px) a ``score``-cue network should declare so that its seed-size estimates centre on labelled
+    sizes: its recorded ``seed_px`` x the median over the held-out COCO images of (their labels' median box side /
+    the network's estimate). The input scale the network runs at (its ``score_size`` over the scale where its
+    scores peak) does not depend on it. Only images with at least PER_IMAGE_MIN_SEEDS labels count; with fewer
+    than CALIBRATION_MIN_IMAGES of them: None. Returns ``{"seed_px", "images", "median_ratio_before"}``."""
+    from seedmap.detect.autoscale import estimate_seed_px
+    from seedmap.detect.cnn import CnnDetector
+    from seedmap.detect.config import CnnConfig
+
+    det = CnnDetector(CnnConfig(refiner="none", threads=threads, tile=0), weights)
+    ratios = []
+    for h in heldout:
+        if h.coco is None:
+            continue
+        for img, boxes, _ in _coco_items(h.coco, h.indices):
+            if len(boxes) < PER_IMAGE_MIN_SEEDS:
+                continue
+            true = float(np.median(np.sqrt((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]))))
+            est = estimate_seed_px(det.peaks, img, det.trained_seed_px, det.scale_cue, det.score_size).seed_px
+            if est:
+                ratios.append(true / est)
+    if len(ratios) < CALIBRATION_MIN_IMAGES:
+        return None
+    r = float(np.median(ratios))
+    return {"seed_px": round(det.trained_seed_px * r, 3), "images": len(ratios), "median_ratio_before": round(1 / r, 4)}
+
+
 def heldout_report(weights: Path, init: str | Path | None, plan: TrainPlan, threads: int = 1,
                    progress: bool = False) -> dict:
     """The held-out F1 of the trained network ``weights`` and of the network it started from (``init``; None = a
