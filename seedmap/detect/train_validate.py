@@ -220,9 +220,10 @@ def calibrate_seed_px(weights: str | Path, heldout: list[HeldOut], threads: int 
     than CALIBRATION_MIN_IMAGES of them: None. Returns ``{"seed_px", "images", "median_ratio_before"}``."""
     from seedmap.detect.autoscale import estimate_seed_px
     from seedmap.detect.cnn import CnnDetector
-    from seedmap.detect.config import CnnConfig
+    from seedmap.detect.config import PHOTO_DEFAULTS, CnnConfig
 
-    det = CnnDetector(CnnConfig(refiner="none", threads=threads, tile=0), weights)
+    # as `seedmap detect` runs photos (PHOTO_DEFAULTS: the whole image in one pass)
+    det = CnnDetector(CnnConfig(refiner="none", threads=threads, tile=PHOTO_DEFAULTS["cnn"]["tile"]), weights)
     ratios = []
     for h in heldout:
         if h.coco is None:
