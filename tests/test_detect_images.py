@@ -13,17 +13,16 @@ import numpy as np
 import pytest
 
 from seedmap.detect import make_detector
-from seedmap.detect.cnn import auto_scale
-from seedmap.detect.cnn import SHIPPED_NETWORKS, WEIGHTS_DIR
+from seedmap.detect.cnn import auto_scale, default_cnn_path
 from seedmap.detect.config import TRAINED_SEED_PX
 from seedmap.detect.train_validate import network_seed_px
-
-#: the seed size (px) the shipped photo network declares it runs at
-PHOTO_SEED_PX = network_seed_px(WEIGHTS_DIR / SHIPPED_NETWORKS["photo"], TRAINED_SEED_PX["photo"])
 from seedmap.errors import ConfigError, InputError
 from seedmap.io.photos import PhotoSet, is_photo_input, read_photo
 
 from helpers.cli import run_cli
+
+#: the seed size (px) the shipped photo network declares it runs at
+PHOTO_SEED_PX = network_seed_px(default_cnn_path("photo"), TRAINED_SEED_PX["photo"])
 
 
 def _errors(capsys) -> list[str]:

@@ -46,8 +46,9 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
     ``out`` gets ``detections.jsonl`` + ``detections_coco.json`` (see :mod:`seedmap.detect.io`),
     ``config.yaml`` (the resolved detector config), ``meta.json`` (detector name, oracle flag, timing, the
     ``fast`` detector's input scale, seed size and how it was set: a stereo sequence's from its first frame, a photo
-    folder's from its last photo (with ``cnn.scale = folder`` the folder's); each photo's own is in its ``detections_coco.json`` image entry) and, with
-    ``overlay``, ``overlay/{left,right}/NNNNNN.png`` (images: ``overlay/NAME.png``) with the ellipses drawn. Images keep their names relative to ``dataset``.
+    folder's from its last photo (with ``cnn.scale = folder`` the folder's); each photo's own is in its
+    ``detections_coco.json`` image entry) and, with ``overlay``, ``overlay/{left,right}/NNNNNN.png`` (images:
+    ``overlay/NAME.png``) with the ellipses drawn. Images keep their names relative to ``dataset``.
     ``inputs``: more files the command read (``--config``, ``--weights``): ``out`` is never one of them.
     """
     from seedmap.config import dump_config

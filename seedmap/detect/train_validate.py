@@ -226,15 +226,14 @@ def calibrate_seed_px(weights: str | Path, heldout: list[HeldOut], threads: int 
     det = CnnDetector(CnnConfig(refiner="none", threads=threads, tile=PHOTO_DEFAULTS["cnn"]["tile"]), weights)
     ratios = []
     for h in heldout:
-        if h.coco is None:
-            continue
-        for img, boxes, _ in _coco_items(h.coco, h.indices):
-            if len(boxes) < PER_IMAGE_MIN_SEEDS:
+        for k in h.indices if h.coco is not None else ():
+            own = h.coco.seed_sides([k])  # the measure plan_training sizes images by; no image read below the minimum
+            if len(own) < PER_IMAGE_MIN_SEEDS:
                 continue
-            true = float(np.median(np.sqrt((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]))))
-            est = estimate_seed_px(det.peaks, img, det.trained_seed_px, det.scale_cue, det.score_size).seed_px
+            est = estimate_seed_px(det.peaks, h.coco[k].image, det.trained_seed_px, det.scale_cue,
+                                   det.score_size).seed_px
             if est:
-                ratios.append(true / est)
+                ratios.append(float(np.median(own)) / est)
     if len(ratios) < CALIBRATION_MIN_IMAGES:
         return None
     r = float(np.median(ratios))

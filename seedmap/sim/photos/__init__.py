@@ -4,7 +4,8 @@
 (``00000.jpg`` ...; flatbed scans as PNG) and ``labels.json``, COCO with one annotation per visible seed (box,
 compressed-RLE mask, area). Each image entry also carries ``seed_px`` (median geometric mean of its seeds' box
 sides) and the ``conditions`` it was drawn with. ``split=validation`` and ``split=heldout`` draw backgrounds, lights
-and varieties that ``split=train`` never uses (two disjoint sets: one to choose with, one to measure). Method: docs/method/photos.md.
+and varieties that ``split=train`` never uses (two disjoint sets: one to choose with, one to measure).
+Method: docs/method/photos.md.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """One simulated grain photo: a background, lit seeds and look-alikes laid out on it, seen through a camera.
 
 :func:`render_photo` draws a photo's conditions (background, light, varieties, layout, camera) from its random
-generator and the split (``train``, ``validation`` or ``heldout``), renders it and returns the image, the instance map of the
-visible seeds and the conditions. Layouts: ``loose`` grain on a surface (scattered or clumped), a ``pile``
+generator and the split (``train``, ``validation`` or ``heldout``), renders it and returns the image, the instance
+map of the visible seeds and the conditions. Layouts: ``loose`` grain on a surface (scattered or clumped), a ``pile``
 (overlapping), a ``panicle`` (seeds packed around branches, glumes beneath) in front of canopy, sky or night.
 Method and parameters: docs/method/photos.md.
 """
@@ -212,9 +212,9 @@ SETUP_SIZE_JITTER = 1.1
 
 def render_photo(rng: Rng, split: str, long_side: tuple[int, int], seed_px: tuple[float, float],
                  empty_fraction: float, setup: dict | None = None) -> Photo:
-    """One photo of ``split`` (train | validation | heldout) with its conditions drawn from ``rng`` (module docstring), or, with
-    ``setup`` (:func:`draw_conditions` of the setup), that background, light and those varieties, its seeds within
-    SETUP_SIZE_JITTER of the setup's size."""
+    """One photo of ``split`` (train | validation | heldout) with its conditions drawn from ``rng`` (module
+    docstring), or, with ``setup`` (:func:`draw_conditions` of the setup), that background, light and those
+    varieties, its seeds within SETUP_SIZE_JITTER of the setup's size."""
     c = draw_conditions(rng, split, long_side, seed_px)
     if setup is not None:
         j = float(np.exp(rng.uniform(-np.log(SETUP_SIZE_JITTER), np.log(SETUP_SIZE_JITTER))))

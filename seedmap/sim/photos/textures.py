@@ -4,7 +4,8 @@ Every generator returns an albedo image ``(h, w, 3)`` float32 in [0, 1] at the p
 image's seed size ``seed_px`` where the texture has a physical scale (a weave's threads, pebbles, leaves).
 Generators are registered in :data:`BACKGROUNDS` with the split they belong to: ``train`` backgrounds are what the
 shipped networks see; ``validation`` and ``heldout`` ones are never trained on: the first choose between networks
-and settings, the second measure how detection copes with a surface it has not seen. The reasoning behind each and its parameters: docs/method/photos.md.
+and settings, the second measure how detection copes with a surface it has not seen. The reasoning behind each and
+its parameters: docs/method/photos.md.
 """
 
 from __future__ import annotations
@@ -106,13 +107,16 @@ def paper(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     return tint(g * _folds(rng, h, w, 0.08), c * rng.uniform(0.85, 1.05))
 
 
+def _rotated(h: int, w: int, period: float, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates in units of ``period`` along the direction ``angle`` (rad) and across it: ``(u, v)``."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    return (xx * np.cos(angle) + yy * np.sin(angle)) / period, (-xx * np.sin(angle) + yy * np.cos(angle)) / period
+
+
 @background("wood", "train")
 def wood(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     """A wooden table or board: growth rings warped by noise, along a random direction."""
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    a = rng.uniform(0, np.pi)
-    u = xx * np.cos(a) + yy * np.sin(a)
-    v = -xx * np.sin(a) + yy * np.cos(a)
+    u, v = _rotated(h, w, 1.0, rng.uniform(0, np.pi))
     period = seed_px * rng.uniform(0.6, 3.0)
     warp = (fbm(rng, h, w, seed_px * 8, 3) - 0.5) * period * 4
     rings = 0.5 + 0.5 * np.sin(2 * np.pi * (v + warp + 0.02 * u) / period)
@@ -246,18 +250,11 @@ def mottled(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     return np.clip(img * (0.9 + 0.1 * noise(rng, h, w, 2.0))[..., None], 0, 1).astype(np.float32)
 
 
-def _lattice(rng: Rng, h: int, w: int, period: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates in units of ``period`` along a random direction: ``(u, v)``."""
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    a = rng.uniform(0, np.pi) if rng.random() < 0.6 else 0.0
-    return (xx * np.cos(a) + yy * np.sin(a)) / period, (-xx * np.sin(a) + yy * np.cos(a)) / period
-
-
 def _motif(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     """Coverage in [0, 1] (antialiased) of one random geometric motif: stripes, grid lines, checks or a dot
     lattice, period 0.4-4 seed diameters."""
     p = max(2.5, seed_px * float(np.exp(rng.uniform(np.log(0.4), np.log(4.0)))))
-    u, v = _lattice(rng, h, w, p)
+    u, v = _rotated(h, w, p, rng.uniform(0, np.pi) if rng.random() < 0.6 else 0.0)
     kind = int(rng.integers(4))
     if kind == 0:  # stripes
         sd = (rng.uniform(0.1, 0.6) / 2 - np.abs(u - np.round(u))) * p
@@ -327,10 +324,7 @@ def sieve(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     """A wire sieve or mesh tray: shiny round wires on a square grid of 0.6-1.6 seed diameters over a dark or light
     underside (never trained on)."""
     period = max(3.0, seed_px * rng.uniform(0.6, 1.6))
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    a = rng.uniform(0, np.pi / 2)
-    u = (xx * np.cos(a) + yy * np.sin(a)) / period
-    v = (-xx * np.sin(a) + yy * np.cos(a)) / period
+    u, v = _rotated(h, w, period, rng.uniform(0, np.pi / 2))
     r = rng.uniform(0.08, 0.2)
     du, dv = np.abs(u - np.round(u)), np.abs(v - np.round(v))
     wire = np.maximum(np.clip(1 - du / r, 0, 1), np.clip(1 - dv / r, 0, 1)) ** 0.5
@@ -373,11 +367,9 @@ def cork(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
 def tiles(rng: Rng, h: int, w: int, seed_px: float) -> np.ndarray:
     """Ceramic floor or wall tiles: squares 2-6 seed diameters across, one or two glazes with fine speckle, grout
     lines 0.1-0.3 seeds wide (validation)."""
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     a = rng.uniform(0, np.pi / 2) if rng.random() < 0.3 else 0.0
     p = seed_px * rng.uniform(2.0, 6.0)
-    u = (xx * np.cos(a) + yy * np.sin(a)) / p
-    v = (-xx * np.sin(a) + yy * np.cos(a)) / p
+    u, v = _rotated(h, w, p, a)
     g = rng.uniform(0.1, 0.3) * seed_px / p / 2
     grout = np.maximum(np.abs(u - np.round(u)) < g, np.abs(v - np.round(v)) < g).astype(np.float32)
     c0 = random_colour(rng, (0.0, 0.6), (0.4, 0.95))
