@@ -6,7 +6,9 @@ size is the median geometric mean of the GT box sides of the detectable seeds (i
 min_visible_seed_px(width) visible px; COCO: the image's ``seed_px``) times the factor. Per image and factor: the
 estimate, its relative error and time, and the box F1 (IoU 0.5, greedy; GT boxes scaled) of the detector with
 ``cnn.scale = auto`` and with the true seed size forced (``cnn.seed_px``). A band section: box F1 of the network at
-scale 1 on rescaled images (what SCALE_BAND is chosen from). A timing section: one estimate on a synthetic ~18 MP
+scale 1 on rescaled images (what SCALE_BAND is chosen from). A ``--curve`` section (COCO photos at their own size):
+box F1 with the input scale at 2^(k/8) x the true seed size's, at the scale auto picks and at the seed-size
+estimate's. A timing section: one estimate on a synthetic ~18 MP
 image (a frame upscaled 4x, cropped to 4912x3684).
 
     python benchmarks/bench_autoscale.py --dataset /work/ref/demo_data --dataset ARM_SCAN:arm --frames 2
@@ -35,6 +37,8 @@ from seedmap.detect.config import min_visible_seed_px  # noqa: E402
 from seedmap.eval.detect_metrics import frame_metrics, prf  # noqa: E402
 
 FACTORS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8, 4.0)
+#: ``--curve``: input scales relative to the one that brings the true seed size to the network's
+CURVE_REL = tuple(float(2.0 ** (k / 8)) for k in range(-4, 5))
 BAND_FACTORS = (0.5, 0.6, 0.7, 0.8, 1.0, 1.2, 1.4, 1.7, 2.0)
 
 
@@ -91,6 +95,34 @@ def f1(det, item: dict, f: float) -> tuple[int, int, int]:  # noqa: ANN001 - a D
     return m.tp, m.n_det, m.n_gt
 
 
+def scale_curve(spec: str) -> dict:
+    """Pooled box F1 of the network (``spec`` = labels.json[:domain], photo by default) on every labelled image with
+    a ``seed_px``: run at CURVE_REL x the scale that brings its true seed size to the network's (``rel``), at the
+    scale ``cnn.scale = auto`` picks (``auto``: the best ladder level of the score cue) and at the scale of the
+    seed-size estimate itself (``estimate``)."""
+    from seedmap.detect.cnn import auto_scale
+
+    path, _, domain = spec.rpartition(":") if spec.endswith((":arm", ":photo", ":field")) else (spec, "", "photo")
+    extra = ["cnn.tile=0"] if domain == "photo" else []
+    det = make_detector("fast", overrides=[f"cnn.domain={domain}", *extra])
+    op = det.trained_seed_px
+    t_rel, t_auto, t_est = np.zeros((len(CURVE_REL), 3), int), np.zeros(3, int), np.zeros(3, int)
+    items = coco_images(Path(path), 10 ** 6)
+    for it in items:
+        det.reset_scale()
+        t_auto += f1(det.detect(it["image"]), it, 1.0)
+        est = det.seed_px_estimate
+        for k, r in enumerate(CURVE_REL):
+            det.scale = min(op / it["true"] * r, 4.0)
+            t_rel[k] += f1(det.detect(it["image"]), it, 1.0)
+        det.scale = auto_scale(est, op)
+        t_est += f1(det.detect(it["image"]), it, 1.0)
+    out = {"images": len(items), "rel": list(CURVE_REL), "f1_rel": [prf(*map(int, t))[2] for t in t_rel],
+           "f1_auto": prf(*map(int, t_auto))[2], "f1_estimate": prf(*map(int, t_est))[2]}
+    print(f"scale curve {spec}: {out}", flush=True)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--dataset", action="append", required=True,
@@ -99,6 +131,10 @@ def main() -> None:
     ap.add_argument("--factors", default=",".join(map(str, FACTORS)))
     ap.add_argument("--no-f1", action="store_true", help="estimates only (no detection runs)")
     ap.add_argument("--band", action="store_true", help="also measure F1 at scale 1 on rescaled images")
+    ap.add_argument("--curve", action="append", default=[],
+                    help="COCO labels.json[:domain] (repeatable, default photo): box F1 of every image run at input "
+                         "scales around its true seed size's, at the scale auto runs it at and at its seed-size "
+                         "estimate's")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "autoscale.json"))
     a = ap.parse_args()
     factors = [float(x) for x in a.factors.split(",")]
@@ -164,6 +200,7 @@ def main() -> None:
             band_sum[f"{dom} x{f:g}"] = prf(*map(int, t))[2]
     if band_sum:
         print("F1 at scale 1:", {k: round(v, 3) for k, v in band_sum.items()})
+    curves = {spec: scale_curve(spec) for spec in a.curve}
     # one estimate on a synthetic 18 MP image
     first = a.dataset[0].removesuffix(":arm").removesuffix(":photo").removesuffix(":field")
     p = Path(first)
@@ -178,7 +215,8 @@ def main() -> None:
     out = Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"command": " ".join(sys.argv), "summary": summary, "band_f1_scale1": band_sum,
-                               "big_image": big_t, "rows": rows, "band": band}, indent=1), encoding="utf-8")
+                               "big_image": big_t, "scale_curve": curves, "rows": rows, "band": band}, indent=1),
+                   encoding="utf-8")
     print(f"wrote {out}")
 
 

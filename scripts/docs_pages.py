@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 from docs_format import fixed, load, mean_std, method_label, num, pct, source, table
 
@@ -498,6 +499,16 @@ def _autoscale(a: dict) -> str:
     big = a.get("big_image") or {}
     tail = (f"\nOne {big.get('width')}×{big.get('height')} image: {num(big.get('estimate_s'), 2)} s per estimate.\n"
             if big else "")
+    curves = a.get("scale_curve") or {}
+    if curves:
+        rel = next(iter(curves.values()))["rel"]
+        tail += ("\nBox F1 of the photo network on photos at their own size, run with the input scale at r × the one "
+                 "that brings the true seed size to the network's, at the scale `cnn.scale=auto` picks (the ladder "
+                 "level where the network scores highest) and at the seed-size estimate's:\n\n"
+                 + table(["photos", "images", *[f"r {x:.2f}" for x in rel], "auto", "estimate"],
+                         [[Path(k.rpartition(":")[0] if k.endswith((":photo", ":arm", ":field")) else k).parent.name,
+                           str(c["images"]), *[num(f) for f in c["f1_rel"]], f"**{num(c['f1_auto'])}**",
+                           num(c["f1_estimate"])] for k, c in curves.items()]))
     return ("Each image of the sets below resized by the factor (its true seed size scales with it); the estimate "
             "(`cnn.scale=auto`) against the median box side of its labelled seeds. Missing estimates count as "
             "failures.\n\n" + table(["network", "rescale", "true seed size, mean (px)", "within ±15 %",

@@ -16,9 +16,10 @@ correction removes the blur that makes small seeds look larger (size^2 = apparen
 size)^2, at most ``BLUR_MAX`` of it). The ladder stops two levels past the target size.
 
 That is the ``boxes`` cue (the field and arm networks). A network trained on photos of many textures predicts boxes
-of about its operating size at every scale, so its cue is ``score`` (:data:`CUES`): the whole ladder runs and the
-seeds have ``score_size`` x the operating size where the mean score of the confident peaks is highest (a parabola
-through the best level and its neighbours in log scale); the multiple belongs to the network (``info["score_size"]``,
+of about its operating size at every scale, so its cue is ``score`` (:data:`CUES`): the whole ladder runs, then the
+midpoints between its levels around the peak of the confident peaks' mean score, and the seeds have ``score_size`` x
+the operating size at that peak (the score-weighted centre of the curve's upper half around its highest level,
+:func:`size_from_scores`); the multiple belongs to the network (``info["score_size"]``,
 :func:`seedmap.detect.cnn.network_score_size`). Method and measured accuracy: docs/method/detection.md.
 """
 
@@ -74,10 +75,14 @@ class Level:
 
 @dataclass
 class SeedSizeEstimate:
-    """The estimated seed size (px of the input image; None when no level had evidence of seeds) and the levels."""
+    """The estimated seed size (px of the input image; None when no level had evidence of seeds), the levels, and
+    ``run_px``: the seed size the network is run for (its input scale is its operating size / ``run_px``). With the
+    ``boxes`` cue that is ``seed_px``; with the ``score`` cue the ladder level where the network scores highest
+    (:func:`run_size_from_scores`), which detects better than the seed size read between levels."""
 
     seed_px: float | None
     levels: list[Level] = field(default_factory=list)
+    run_px: float | None = None
 
 
 def _crops(h: int, w: int, s: float, points: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -186,13 +191,72 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float, cue: str 
         above = above + 1 if crossed and not (lv.peaks >= MIN_PEAKS and lv.box_px <= target) else 0
         if above >= 2:
             break
-    size = size_from_scores(levels, operating_px, score_size) if cue == "score" else CUES[cue](levels, operating_px)
-    return SeedSizeEstimate(size, levels)
+    if cue != "score":
+        size = CUES[cue](levels, operating_px)
+        return SeedSizeEstimate(size, levels, size)
+    run_px = run_size_from_scores(levels, operating_px, score_size)
+    for s in score_midpoints(levels):  # the score peak read between levels: the midpoints around it measured too
+        lv, xy = measure_level(peaks_fn, pyramid, float(s), points)
+        levels.append(lv)
+        points = np.concatenate([points, xy])
+    levels.sort(key=lambda v: -v.scale)
+    return SeedSizeEstimate(size_from_scores(levels, operating_px, score_size), levels, run_px)
+
+
+def _score_peak(levels: list[Level]) -> tuple[list[Level], int, int] | None:
+    """The levels with MIN_PEAKS confident peaks (largest scale first) and the run ``[j0, j1]`` of them that makes
+    the score curve's peak: around the highest level of the curve smoothed over 1-2-1 neighbours, the levels that
+    score above halfway from the lowest to the highest score. None without such levels."""
+    use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
+    if not use:
+        return None
+    y = np.array([lv.score for lv in use])
+    i = int(np.argmax(np.convolve(np.pad(y, 1, mode="edge"), [0.25, 0.5, 0.25], "valid")))
+    cut = y.max() - 0.5 * (y.max() - y.min())
+    j0, j1 = i, i
+    while j0 > 0 and y[j0 - 1] > cut:
+        j0 -= 1
+    while j1 < len(y) - 1 and y[j1 + 1] > cut:
+        j1 += 1
+    return use, j0, j1
+
+
+def score_midpoints(levels: list[Level]) -> list[float]:
+    """Scales halfway (in log scale) between neighbouring ladder ``levels`` over the score peak's run and one level
+    beyond each end, where the ``score`` cue reads its peak more finely; [] without a peak."""
+    peak = _score_peak(levels)
+    if peak is None:
+        return []
+    use, j0, j1 = peak
+    hi, lo = use[j0].scale * LADDER_STEP * 1.001, use[j1].scale / LADDER_STEP / 1.001
+    scales = sorted({lv.scale for lv in levels}, reverse=True)
+    return [float(np.sqrt(a * b)) for a, b in zip(scales, scales[1:]) if lo <= b and a <= hi]
 
 
 def size_from_scores(levels: list[Level], operating_px: float, score_size: float = SCORE_SIZE) -> float | None:
     """The ``score`` cue: ``score_size`` x ``operating_px`` over the scale where the confident peaks' mean score
-    peaks (module docstring); None when no level has MIN_PEAKS confident peaks."""
+    peaks (module docstring): the score-weighted centre (log scale) of the peak's run of levels
+    (:func:`_score_peak`), weighted by how far each scores above the run's cut, so one level's noise neither picks nor
+    pins the peak and a second bump elsewhere on the ladder does not pull it. None when no level has MIN_PEAKS
+    confident peaks."""
+    peak = _score_peak(levels)
+    if peak is None:
+        return None
+    use, j0, j1 = peak
+    y = np.array([lv.score for lv in use])
+    x = np.log([lv.scale for lv in use[j0:j1 + 1]])
+    w = np.maximum(y[j0:j1 + 1] - (y.max() - 0.5 * (y.max() - y.min())), 0.0)
+    s = float(np.exp((w * x).sum() / w.sum())) if w.sum() > 0 else use[int(np.argmax(y))].scale
+    return score_size * operating_px / s
+
+
+def run_size_from_scores(levels: list[Level], operating_px: float, score_size: float = SCORE_SIZE) -> float | None:
+    """The seed size a ``score``-cue network is run for, from the ladder's own ``levels`` (no midpoints):
+    ``score_size`` x ``operating_px`` over the level with the highest mean score of confident peaks (a parabola
+    through it and its neighbours when it has one on each side); None when no level has MIN_PEAKS confident peaks.
+    The network detects best where it scores highest: on the validation photos F1 0.766 run there against 0.731 at
+    the seed size read between levels (:func:`size_from_scores`) and 0.738 at the true size
+    (docs/method/detection.md)."""
     use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
     if not use:
         return None

@@ -263,28 +263,31 @@ class CnnDetector(Detector):
         #: the network runs on the image resized by this factor: set by the config or the network (``scale_source``
         #: seed_px | scale | network), else (``auto``) from the seed size estimated on the next image it sees
         self.scale, self.scale_source = fixed_scale(self.cfg, self.trained_seed_px, self.info.get("images_seed_px"))
-        #: the seed size (px) estimated from an image (``auto`` only; None before one, or without seeds found)
+        #: the seed size (px) estimated from an image (``auto`` only; None before one, or without seeds found) and
+        #: the size the network is run for (autoscale.SeedSizeEstimate.run_px; sets the scale)
         self.seed_px_estimate: float | None = None
+        self.run_px_estimate: float | None = None
         self._pool = None
 
     def reset_scale(self) -> None:
         """With ``cnn.scale = auto``: estimate the seed size again on the next image (a new photo); else nothing."""
         if self.scale_source == "auto":
-            self.scale, self.seed_px_estimate = None, None
+            self.scale, self.seed_px_estimate, self.run_px_estimate = None, None, None
 
-    def set_seed_px_estimate(self, seed_px: float | None) -> None:
-        """With ``cnn.scale = auto``: use the seed size ``seed_px`` (px; None = none found) as if estimated, until
-        :meth:`reset_scale`; else nothing."""
+    def set_seed_px_estimate(self, seed_px: float | None, run_px: float | None = None) -> None:
+        """With ``cnn.scale = auto``: use the seed size ``seed_px`` (px; None = none found) as if estimated, and run
+        the network for seeds of ``run_px`` (default ``seed_px``), until :meth:`reset_scale`; else nothing."""
         if self.scale_source == "auto":
             self.seed_px_estimate = seed_px
-            self.scale = auto_scale(seed_px, self.trained_seed_px)
+            self.run_px_estimate = seed_px if run_px is None else run_px
+            self.scale = auto_scale(self.run_px_estimate, self.trained_seed_px)
 
     def ensure_scale(self, image: np.ndarray) -> float:
         """The input scale, estimated from RGB ``image`` first when it is not known yet (``auto``)."""
         if self.scale is None:
-            self.seed_px_estimate = estimate_seed_px(self.peaks, check_image(image), self.trained_seed_px,
-                                                     self.scale_cue, self.score_size).seed_px
-            self.scale = auto_scale(self.seed_px_estimate, self.trained_seed_px)
+            e = estimate_seed_px(self.peaks, check_image(image), self.trained_seed_px, self.scale_cue,
+                                 self.score_size)
+            self.set_seed_px_estimate(e.seed_px, e.run_px)
         return self.scale
 
     def settings(self) -> dict:

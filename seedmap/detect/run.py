@@ -113,7 +113,7 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
     reset = getattr(det, "reset_scale", None)  # the fast detector: a fresh seed-size estimate per photo
     if reset is not None and getattr(det, "scale_source", None) == "auto" and det.cfg.scale == "folder":
         t0 = time.perf_counter()
-        det.set_seed_px_estimate(folder_seed_px(det, photos, idx, progress))
+        det.set_seed_px_estimate(*folder_seed_px(det, photos, idx, progress))
         t_det += time.perf_counter() - t0
         reset = None  # one seed size for every photo
     for i in track(idx, f"detect ({det.name})", "image", enabled=progress):
@@ -133,19 +133,21 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
     return records, t_det
 
 
-def folder_seed_px(det: Detector, photos: PhotoSet, idx: list[int], progress: bool = False) -> float | None:
+def folder_seed_px(det: Detector, photos: PhotoSet, idx: list[int], progress: bool = False
+                   ) -> tuple[float | None, float | None]:
     """``cnn.scale = folder``: the median seed size (px) the ``fast`` detector ``det`` estimates on up to
-    FOLDER_SAMPLE of the photos ``idx``, evenly spread (photos without seeds found do not count; None when no photo
-    gave an estimate)."""
+    FOLDER_SAMPLE of the photos ``idx``, evenly spread, and the median size it would run the network for
+    (photos without seeds found do not count; None when no photo gave an estimate)."""
     pick = [idx[int(k)] for k in np.unique(np.linspace(0, len(idx) - 1, min(FOLDER_SAMPLE, len(idx))).round())]
-    est = []
+    est, run = [], []
     for i in track(pick, "seed size", "image", enabled=progress):
         det.reset_scale()
         det.ensure_scale(photos.image(i))
-        if det.seed_px_estimate is not None:
+        if det.seed_px_estimate is not None and det.run_px_estimate is not None:
             est.append(det.seed_px_estimate)
+            run.append(det.run_px_estimate)
     det.reset_scale()
-    return float(np.median(est)) if est else None
+    return (float(np.median(est)), float(np.median(run))) if est else (None, None)
 
 
 def run_eval_detect(dataset: str | Path, detections_dir: str | Path, out_json: str | Path | None = None,
