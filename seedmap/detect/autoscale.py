@@ -203,10 +203,10 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float, cue: str 
     return SeedSizeEstimate(size_from_scores(levels, operating_px, score_size), levels, run_px)
 
 
-def _score_peak(levels: list[Level]) -> tuple[list[Level], int, int] | None:
-    """The levels with MIN_PEAKS confident peaks (largest scale first) and the run ``[j0, j1]`` of them that makes
-    the score curve's peak: around the highest level of the curve smoothed over 1-2-1 neighbours, the levels that
-    score above halfway from the lowest to the highest score. None without such levels."""
+def _score_peak(levels: list[Level]) -> tuple[list[Level], int, int, float] | None:
+    """The levels with MIN_PEAKS confident peaks (largest scale first), the run ``[j0, j1]`` of them that makes the
+    score curve's peak and its cut: around the highest level of the curve smoothed over 1-2-1 neighbours, the levels
+    that score above the cut, halfway from the lowest to the highest score. None without such levels."""
     use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
     if not use:
         return None
@@ -218,7 +218,7 @@ def _score_peak(levels: list[Level]) -> tuple[list[Level], int, int] | None:
         j0 -= 1
     while j1 < len(y) - 1 and y[j1 + 1] > cut:
         j1 += 1
-    return use, j0, j1
+    return use, j0, j1, float(cut)
 
 
 def score_midpoints(levels: list[Level]) -> list[float]:
@@ -227,7 +227,7 @@ def score_midpoints(levels: list[Level]) -> list[float]:
     peak = _score_peak(levels)
     if peak is None:
         return []
-    use, j0, j1 = peak
+    use, j0, j1, _ = peak
     hi, lo = use[j0].scale * LADDER_STEP * 1.001, use[j1].scale / LADDER_STEP / 1.001
     scales = sorted({lv.scale for lv in levels}, reverse=True)
     return [float(np.sqrt(a * b)) for a, b in zip(scales, scales[1:]) if lo <= b and a <= hi]
@@ -242,11 +242,11 @@ def size_from_scores(levels: list[Level], operating_px: float, score_size: float
     peak = _score_peak(levels)
     if peak is None:
         return None
-    use, j0, j1 = peak
-    y = np.array([lv.score for lv in use])
-    x = np.log([lv.scale for lv in use[j0:j1 + 1]])
-    w = np.maximum(y[j0:j1 + 1] - (y.max() - 0.5 * (y.max() - y.min())), 0.0)
-    s = float(np.exp((w * x).sum() / w.sum())) if w.sum() > 0 else use[int(np.argmax(y))].scale
+    use, j0, j1, cut = peak
+    run = use[j0:j1 + 1]
+    x = np.log([lv.scale for lv in run])
+    w = np.maximum(np.array([lv.score for lv in run]) - cut, 0.0)
+    s = float(np.exp((w * x).sum() / w.sum())) if w.sum() > 0 else max(run, key=lambda v: v.score).scale
     return score_size * operating_px / s
 
 
