@@ -95,6 +95,14 @@ def f1(det, item: dict, f: float) -> tuple[int, int, int]:  # noqa: ANN001 - a D
     return m.tp, m.n_det, m.n_gt
 
 
+def dataset_spec(spec: str, default: str = "field") -> tuple[Path, str, list[str]]:
+    """``PATH[:arm|:photo|:field]`` -> the path, the network's domain (``default`` without a suffix) and the
+    detector overrides it runs with (photos as `seedmap detect` runs them, PHOTO_DEFAULTS: the whole image in one
+    pass)."""
+    path, _, domain = spec.rpartition(":") if spec.endswith((":arm", ":photo", ":field")) else (spec, "", default)
+    return Path(path), domain, [f"cnn.domain={domain}", *(["cnn.tile=0"] if domain == "photo" else [])]
+
+
 def scale_curve(spec: str) -> dict:
     """Pooled box F1 of the network (``spec`` = labels.json[:domain], photo by default) on every labelled image with
     a ``seed_px``: run at CURVE_REL x the scale that brings its true seed size to the network's (``rel``), at the
@@ -102,12 +110,11 @@ def scale_curve(spec: str) -> dict:
     seed-size estimate itself (``estimate``)."""
     from seedmap.detect.cnn import auto_scale
 
-    path, _, domain = spec.rpartition(":") if spec.endswith((":arm", ":photo", ":field")) else (spec, "", "photo")
-    extra = ["cnn.tile=0"] if domain == "photo" else []
-    det = make_detector("fast", overrides=[f"cnn.domain={domain}", *extra])
+    path, _, opts = dataset_spec(spec, "photo")
+    det = make_detector("fast", overrides=opts)
     op = det.trained_seed_px
     t_rel, t_auto, t_est = np.zeros((len(CURVE_REL), 3), int), np.zeros(3, int), np.zeros(3, int)
-    items = coco_images(Path(path), 10 ** 6)
+    items = coco_images(path, 10 ** 6)
     for it in items:
         det.reset_scale()
         t_auto += f1(det.detect(it["image"]), it, 1.0)
@@ -138,16 +145,12 @@ def main() -> None:
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "autoscale.json"))
     a = ap.parse_args()
     factors = [float(x) for x in a.factors.split(",")]
-    rows, band, dets, extra = [], [], {}, {}
+    rows, band, dets = [], [], {}
     for spec in a.dataset:
-        path, _, domain = spec.rpartition(":") if spec.endswith((":arm", ":photo", ":field")) else (spec, "", "field")
-        domain = domain or "field"
-        p = Path(path)
+        p, domain, opts = dataset_spec(spec)
         items = coco_images(p, a.frames) if p.suffix == ".json" else seedmap_images(p, a.frames)
         if domain not in dets:
-            # photos run as `seedmap detect` runs them (PHOTO_DEFAULTS: the whole image in one pass)
-            extra[domain] = ["cnn.tile=0"] if domain == "photo" else []
-            dets[domain] = make_detector("fast", overrides=[f"cnn.domain={domain}", *extra[domain]])
+            dets[domain] = make_detector("fast", overrides=opts)
         det = dets[domain]
         for it in items:
             if it["true"] is None:
@@ -165,8 +168,7 @@ def main() -> None:
                     det.reset_scale()
                     row["auto_scale"] = det.ensure_scale(img)
                     row["auto"] = f1(det.detect(img), it, f)
-                    opts = [f"cnn.domain={domain}", f"cnn.seed_px={true}", *extra[domain]]
-                    forced = make_detector("fast", overrides=opts) \
+                    forced = make_detector("fast", overrides=[*opts, f"cnn.seed_px={true}"]) \
                         if det.trained_seed_px / true <= 4 else None
                     row["true_scale"] = None if forced is None else forced.scale
                     row["forced"] = None if forced is None else f1(forced.detect(img), it, f)
@@ -177,7 +179,7 @@ def main() -> None:
                       + ("" if a.no_f1 else f" F1 auto {prf(*row['auto'])[2]:.3f} forced "
                          f"{'-' if row['forced'] is None else round(prf(*row['forced'])[2], 3)}"), flush=True)
             if a.band:
-                d1 = make_detector("fast", overrides=[f"cnn.domain={domain}", "cnn.scale=1", *extra[domain]])
+                d1 = make_detector("fast", overrides=[*opts, "cnn.scale=1"])
                 for f in BAND_FACTORS:
                     band.append({"dataset": str(p), "domain": domain, "image": it["name"], "factor": f,
                                  "seed_px": it["true"] * f, "scale1": f1(d1.detect(resize(it["image"], f)), it, f)})
@@ -202,8 +204,7 @@ def main() -> None:
         print("F1 at scale 1:", {k: round(v, 3) for k, v in band_sum.items()})
     curves = {spec: scale_curve(spec) for spec in a.curve}
     # one estimate on a synthetic 18 MP image
-    first = a.dataset[0].removesuffix(":arm").removesuffix(":photo").removesuffix(":field")
-    p = Path(first)
+    p = dataset_spec(a.dataset[0])[0]
     it = (coco_images(p, 1) if p.suffix == ".json" else seedmap_images(p, 1))[0]
     big = resize(it["image"], 4.0)[:3684, :4912]
     det = next(iter(dets.values()))

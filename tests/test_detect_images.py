@@ -13,16 +13,12 @@ import numpy as np
 import pytest
 
 from seedmap.detect import make_detector
-from seedmap.detect.cnn import auto_scale, default_cnn_path
-from seedmap.detect.config import TRAINED_SEED_PX
-from seedmap.detect.train_validate import network_seed_px
+from seedmap.detect.cnn import auto_scale
 from seedmap.errors import ConfigError, InputError
 from seedmap.io.photos import PhotoSet, is_photo_input, read_photo
 
 from helpers.cli import run_cli
-
-#: the seed size (px) the shipped photo network declares it runs at
-PHOTO_SEED_PX = network_seed_px(default_cnn_path("photo"), TRAINED_SEED_PX["photo"])
+from helpers.networks import PHOTO_SEED_PX
 
 
 def _errors(capsys) -> list[str]:

@@ -14,17 +14,13 @@ import cv2
 import numpy as np
 import pytest
 
-from seedmap.detect.cnn import default_cnn_path
-from seedmap.detect.config import TRAINED_SEED_PX
 from seedmap.detect.cnn_targets import TrainImage, rescale_targets
 from seedmap.detect.io import coco_from_records
-from seedmap.detect.train_validate import network_seed_px, split_coco
+from seedmap.detect.train_validate import split_coco
 
 from helpers.cli import run_cli
 from helpers.coco import export_coco
-
-#: the seed size (px) the shipped photo network declares it runs at
-PHOTO_SEED_PX = network_seed_px(default_cnn_path("photo"), TRAINED_SEED_PX["photo"])
+from helpers.networks import PHOTO_SEED_PX
 
 FAST = ["--steps", "3", "--batch", "2", "--crop", "48", "--threads", "1"]
 

@@ -203,11 +203,16 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float, cue: str 
     return SeedSizeEstimate(size_from_scores(levels, operating_px, score_size), levels, run_px)
 
 
+def _usable(levels: list[Level]) -> list[Level]:
+    """The ``levels`` (in their order) with MIN_PEAKS confident peaks: the ones that count as evidence."""
+    return [lv for lv in levels if lv.peaks >= MIN_PEAKS]
+
+
 def _score_peak(levels: list[Level]) -> tuple[list[Level], int, int, float] | None:
     """The levels with MIN_PEAKS confident peaks (largest scale first), the run ``[j0, j1]`` of them that makes the
     score curve's peak and its cut: around the highest level of the curve smoothed over 1-2-1 neighbours, the levels
     that score above the cut, halfway from the lowest to the highest score. None without such levels."""
-    use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
+    use = _usable(levels)
     if not use:
         return None
     y = np.array([lv.score for lv in use])
@@ -257,7 +262,7 @@ def run_size_from_scores(levels: list[Level], operating_px: float, score_size: f
     The network detects best where it scores highest: on the validation photos F1 0.766 run there against 0.731 at
     the seed size read between levels (:func:`size_from_scores`) and 0.738 at the true size
     (docs/method/detection.md)."""
-    use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
+    use = _usable(levels)
     if not use:
         return None
     i = int(np.argmax([lv.score for lv in use]))
@@ -275,7 +280,7 @@ def size_from_levels(levels: list[Level], operating_px: float) -> float | None:
     """The seed size (px) read off ladder ``levels`` (largest scale first) of a network operating at
     ``operating_px`` (module docstring); None when no level has MIN_PEAKS confident peaks."""
     target = TARGET * operating_px
-    use = [lv for lv in levels if lv.peaks >= MIN_PEAKS]
+    use = _usable(levels)
     if not use:
         return None
     # the predicted box size falls with the scale: where it passes the target (log-interpolated between the two
