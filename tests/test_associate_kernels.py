@@ -213,3 +213,41 @@ def test_detector_gathers_equal_the_numpy_expressions(cnn_range):
     got = patches(img, x, y, r)
     assert np.array_equal(got, want)
     assert np.array_equal(patches(img[..., 1], x, y, 2), patches(img[..., 1:2], x, y, 2))
+
+
+def test_refiner_context_equals_the_kdtree_version(cnn_range):
+    """The compiled neighbour context of the refiner's features equals the KD-tree + numpy version (which also
+    answers the rows the kernel flags), on real peaks and on dense lattices full of equal distances and logits."""
+    from seedmap.detect.cnn import CnnDetector
+    from seedmap.detect.cnn_refine import NEAR_PX, NEIGHBOUR_K, NEIGHBOUR_PX, SCALE_PX, _context_kdtree, peak_features
+    from seedmap.detect.kernels import peak_context
+
+    def both(xy, raw):
+        rw = np.asarray(raw, np.float32).copy()
+        rw[:, 1:5] /= SCALE_PX
+        k = min(NEIGHBOUR_K + 1, len(xy))
+        nb, amb = peak_context(xy, rw, k, NEIGHBOUR_PX, NEAR_PX, SCALE_PX)
+        ref = _context_kdtree(xy, rw, np.arange(len(xy)), k)
+        return nb, amb, ref
+
+    img = np.ascontiguousarray(cnn_range[0].left)
+    pk = CnnDetector().peaks(img)
+    xy = np.c_[pk.x, pk.y]
+    nb, amb, ref = both(xy, pk.raw)
+    assert len(xy) > 500 and amb.mean() < 0.05
+    assert np.array_equal(nb[~amb], ref[~amb])
+    assert np.array_equal(peak_features(img, pk.x, pk.y, pk.raw)[:, -8:], ref)
+    rng = np.random.default_rng(4)
+    for trial in range(12):
+        n = int(rng.integers(2, 600))
+        xy = np.c_[rng.integers(0, 50, n), rng.integers(0, 30, n)].astype(np.float64)
+        if trial % 3 == 0:
+            xy += rng.random((n, 2)) * 0.5
+        if trial % 4 == 1:
+            xy[: n // 4] = xy[n // 4: 2 * (n // 4)]  # repeated positions
+        raw = rng.normal(size=(n, 7)).astype(np.float32)
+        raw[:, 0] = np.round(raw[:, 0] * 2) / 2  # many equal logits
+        nb, amb, ref = both(xy, raw)
+        assert np.array_equal(nb[~amb], ref[~amb])
+        full = peak_features(rng.integers(0, 255, (40, 60, 3), np.uint8), xy[:, 0], xy[:, 1], raw)
+        assert np.array_equal(full[:, -8:], ref)

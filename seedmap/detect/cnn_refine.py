@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from seedmap.detect.kernels import peak_context
 from seedmap.detect.mlp import KIND, Mlp, patches
 from seedmap.detect.runtime import WEIGHTS_DIR, load_session
 from seedmap.errors import ConfigError, InputError
@@ -27,6 +28,8 @@ PATCH_R = 6
 SCALE_PX = 5.0
 #: radius (px) of the neighbour context
 NEIGHBOUR_PX = 8.0
+#: the context also counts the peaks within this distance (px)
+NEAR_PX = 4.0
 #: neighbours looked at per peak (the densest 8-px discs hold fewer)
 NEIGHBOUR_K = 12
 #: feature columns after the patch: raw predictions (7) and neighbour context (8)
@@ -56,30 +59,41 @@ def peak_features(img: np.ndarray, x: np.ndarray, y: np.ndarray, raw: np.ndarray
                     extra=N_EXTRA)
     rw = np.asarray(raw, np.float32).copy()
     rw[:, 1:5] /= SCALE_PX
-    # neighbour context: the strongest other peak within NEIGHBOUR_PX whose logit is higher
+    # neighbour context: the strongest other peak within NEIGHBOUR_PX whose logit is higher (compiled; the KD-tree
+    # on the rows where its order decides)
     xy = np.c_[np.asarray(x, np.float64), np.asarray(y, np.float64)]
     k = min(NEIGHBOUR_K + 1, n)
-    d, j = cKDTree(xy).query(xy, k=k, distance_upper_bound=NEIGHBOUR_PX)
-    d, j = d.reshape(n, k), j.reshape(n, k)
-    ok = (j < n) & (j != np.arange(n)[:, None])
-    lg = np.append(rw[:, 0], -np.inf)
-    lj = np.where(ok, lg[np.minimum(j, n)], -np.inf)
-    higher = ok & (lj > rw[:, :1])
-    best = np.argmax(np.where(higher, lj, -np.inf), axis=1)
-    has = higher[np.arange(n), best]
-    b = j[np.arange(n), best]
-    b = np.where(has, b, 0)
-    nb = np.zeros((n, 8), np.float32)
-    nb[:, 0] = has
-    nb[:, 1:3] = np.where(has[:, None], (xy[b] - xy) / SCALE_PX, 0.0)
-    nb[:, 3] = np.where(has, rw[b, 0] - rw[:, 0], 0.0)
-    nb[:, 4] = np.where(has, rw[b, 1] + rw[b, 3], 0.0)
-    nb[:, 5] = np.where(has, rw[b, 2] + rw[b, 4], 0.0)
-    nb[:, 6] = (ok & (d <= 4.0)).sum(axis=1)
-    nb[:, 7] = ok.sum(axis=1)
+    nb, amb = peak_context(xy, rw, k, NEIGHBOUR_PX, NEAR_PX, SCALE_PX)
+    if amb.any():
+        rows = np.flatnonzero(amb)
+        nb[rows] = _context_kdtree(xy, rw, rows, k)
     feats[:, -N_EXTRA:-8] = rw
     feats[:, -8:] = nb
     return feats
+
+
+def _context_kdtree(xy: np.ndarray, rw: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+    """The neighbour context (:func:`seedmap.detect.kernels.peak_context`) of the peaks ``rows`` from the KD-tree's
+    ``k`` nearest within NEIGHBOUR_PX, the tree's order deciding between equal distances and equal logits."""
+    n, m = len(xy), len(rows)
+    d, j = cKDTree(xy).query(xy[rows], k=k, distance_upper_bound=NEIGHBOUR_PX)
+    d, j = d.reshape(m, k), j.reshape(m, k)
+    ok = (j < n) & (j != rows[:, None])
+    lg = np.append(rw[:, 0], -np.inf)
+    lj = np.where(ok, lg[np.minimum(j, n)], -np.inf)
+    higher = ok & (lj > lg[rows][:, None])
+    best = np.argmax(np.where(higher, lj, -np.inf), axis=1)
+    has = higher[np.arange(m), best]
+    b = np.where(has, j[np.arange(m), best], 0)
+    nb = np.zeros((m, 8), np.float32)
+    nb[:, 0] = has
+    nb[:, 1:3] = np.where(has[:, None], (xy[b] - xy[rows]) / SCALE_PX, 0.0)
+    nb[:, 3] = np.where(has, rw[b, 0] - rw[rows, 0], 0.0)
+    nb[:, 4] = np.where(has, rw[b, 1] + rw[b, 3], 0.0)
+    nb[:, 5] = np.where(has, rw[b, 2] + rw[b, 4], 0.0)
+    nb[:, 6] = (ok & (d <= NEAR_PX)).sum(axis=1)
+    nb[:, 7] = ok.sum(axis=1)
+    return nb
 
 
 @dataclass
