@@ -295,6 +295,9 @@ def page_slam(cmds: dict[str, str]) -> tuple[str, str] | None:
         body += [f"\n**Whole pipeline per stage on `{st['dataset']}`** (wall ms per frame, {st['cpu_count']} cores{cpu}{busy}; "
                  "with the prefetch thread decode and detection overlap the rest, so the stages add up to more than "
                  f"the wall time; ORB-SLAM3: {st['orbslam3']})\n", _stage_table(st)]
+        if st.get("sequential_seeds_vs_orbslam3_ratio") is not None:
+            body.append(f"\nSeeds / ORB-SLAM3, wall per frame: {num(st['seeds_vs_orbslam3_ratio'])} with the decode "
+                        f"prefetch for both, {num(st['sequential_seeds_vs_orbslam3_ratio'])} with neither.\n")
     if ln := load("bench_slam_length.json"):
         lrows = [[num(r["length_m"]), f"`{r['online']}`", f"{r['frames_tracked']}/{r['frames']}",
                   num(r["cpu_ms_first_10pct"]), num(r["cpu_ms_last_10pct"]), num(r["last_vs_first_ratio"]),

@@ -124,6 +124,20 @@ def glance() -> str:
             rows.append(["association speed (default)",
                          f"{num(1000 * (r['stereo_cpu_s'] + r['temporal_cpu_s']), 2)} ms CPU per frame (stereo + "
                          "temporal) at 1,000 seeds per image", "[slam](docs/results/slam.md)"])
+        paper = [st for st in d.get("stages", []) if st["dataset"].startswith("paper")
+                 and st.get("seeds_vs_orbslam3_ratio") is not None]
+        if paper:
+            def span(vals: list[float]) -> str:
+                lo, hi = num(min(vals)), num(max(vals))
+                return lo if lo == hi else f"{lo}–{hi}"
+
+            walls = {m: [next(r for r in st["rows"] if r["method"] == m)["wall_ms_per_frame"] for st in paper]
+                     for m in ("seeds (fast), prefetch", "ORB-SLAM3, prefetch")}
+            rows.append(["SLAM speed, whole pipeline (decode to back-end), paper ranges",
+                         f"{span(walls['seeds (fast), prefetch'])} ms per frame on two cores against ORB-SLAM3's "
+                         f"{span(walls['ORB-SLAM3, prefetch'])} in the same run "
+                         f"({span([st['seeds_vs_orbslam3_ratio'] for st in paper])}× slower)",
+                         "[slam](docs/results/slam.md)"])
     e, o = load("bench_recon_eval.json"), load("bench_recon_eval_oracle.json")
     if e or o:
         txt = []
