@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from seedmap.compiled import kernel
+from seedmap.compiled import cell_members, kernel
 
 #: relative gap below which the k-th and (k+1)-th squared distances count as a tie (left to the KD-tree)
 TIE_REL = 1e-9
@@ -308,19 +308,11 @@ def _grid(pts: np.ndarray, x0: float, y0: float, x1: float, y1: float, cell: flo
         gy = max(1, gy // 2)
     cell = max((x1 - x0) / gx, (y1 - y0) / gy, 1e-9) * (1.0 + 1e-12)
     cid = np.empty(n, np.int64)
-    counts = np.zeros(gx * gy + 1, np.int64)
     for p in range(n):
         cx = min(int((pts[p, 0] - x0) / cell), gx - 1)
         cy = min(int((pts[p, 1] - y0) / cell), gy - 1)
         cid[p] = cy * gx + cx
-        counts[cid[p] + 1] += 1
-    for c in range(gx * gy):
-        counts[c + 1] += counts[c]
-    fill = counts[:-1].copy()
-    members = np.empty(n, np.int64)
-    for p in range(n):
-        members[fill[cid[p]]] = p
-        fill[cid[p]] += 1
+    counts, members = cell_members(cid, gx * gy)
     return cell, gx, gy, counts, members
 
 

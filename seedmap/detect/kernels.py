@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from seedmap.compiled import kernel
+from seedmap.compiled import cell_members, kernel
 
 #: ``uint8 -> float32`` of the network input (``x.astype(np.float32) * (1.0 / 255.0)``)
 INPUT_LUT = np.arange(256).astype(np.uint8).astype(np.float32) * (1.0 / 255.0)
@@ -92,18 +92,9 @@ def _cells(xy: np.ndarray, cell: float):
         gx = int((x1 - x0) / cell) + 1
         gy = int((y1 - y0) / cell) + 1
     cid = np.empty(n, np.int64)
-    counts = np.zeros(gx * gy + 1, np.int64)
     for p in range(n):
-        c = min(int((xy[p, 1] - y0) / cell), gy - 1) * gx + min(int((xy[p, 0] - x0) / cell), gx - 1)
-        cid[p] = c
-        counts[c + 1] += 1
-    for c in range(gx * gy):
-        counts[c + 1] += counts[c]
-    fill = counts[:-1].copy()
-    members = np.empty(n, np.int64)
-    for p in range(n):
-        members[fill[cid[p]]] = p
-        fill[cid[p]] += 1
+        cid[p] = min(int((xy[p, 1] - y0) / cell), gy - 1) * gx + min(int((xy[p, 0] - x0) / cell), gx - 1)
+    counts, members = cell_members(cid, gx * gy)
     return gx, gy, cid, counts, members
 
 
