@@ -105,12 +105,13 @@ def _orbslam3_row(dataset: Path, vocab: str, prefetch: int) -> dict:
     from seedmap.peers.orbslam3 import OrbSlam3Config, fps_of, settings_text
     from seedmap.slam.stream import Prefetch
 
+    ds = SlamConfig().dataset.open(dataset)
+
     def decode(i: int) -> tuple:
         t0 = time.perf_counter()
         f = ds[i]
         return f, time.perf_counter() - t0
 
-    ds = SlamConfig().dataset.open(dataset)
     t_start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         settings = Path(tmp) / "stereo.yaml"

@@ -4,7 +4,8 @@ The machine code is cached on disk (next to the module, else in the user's cache
 only the first run after installing compiles it; where no cache folder is writable the kernels are compiled in memory
 on every run instead. ``nogil``: the prefetch thread's detector kernels run alongside the association's.
 
-:func:`cell_members` is the one kernel the association's and the detector's grid searches share.
+:func:`cell_members` and :func:`insert_sorted` are the kernels the association's and the detector's grid searches
+share.
 """
 
 from __future__ import annotations
@@ -38,3 +39,20 @@ def cell_members(cid: np.ndarray, ncell: int) -> tuple[np.ndarray, np.ndarray]:
         members[fill[cid[p]]] = p
         fill[cid[p]] += 1
     return counts, members
+
+
+@kernel
+def insert_sorted(bd: np.ndarray, bi: np.ndarray, cnt: int, cap: int, d: float, j: int) -> int:
+    """Insert ``(d, j)`` into the ascending best list ``bd``/``bi`` of ``cnt`` entries (at most ``cap``; an entry
+    equal to others goes after them); the new count."""
+    if cnt == cap and d >= bd[cap - 1]:
+        return cnt
+    p = cnt if cnt < cap else cap - 1
+    while p > 0 and bd[p - 1] > d:
+        if p < cap:
+            bd[p] = bd[p - 1]
+            bi[p] = bi[p - 1]
+        p -= 1
+    bd[p] = d
+    bi[p] = j
+    return cnt + 1 if cnt < cap else cnt

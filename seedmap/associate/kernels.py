@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from seedmap.compiled import cell_members, kernel
+from seedmap.compiled import cell_members, insert_sorted, kernel
 
 #: relative gap below which the k-th and (k+1)-th squared distances count as a tie (left to the KD-tree)
 TIE_REL = 1e-9
@@ -281,22 +281,6 @@ def box3_filter(x: np.ndarray) -> np.ndarray:
 
 
 @kernel
-def _insert(bd: np.ndarray, bi: np.ndarray, cnt: int, cap: int, d: float, j: int) -> int:
-    """Insert ``(d, j)`` into the ascending best list ``bd``/``bi`` of ``cnt`` entries (at most ``cap``)."""
-    if cnt == cap and d >= bd[cap - 1]:
-        return cnt
-    p = cnt if cnt < cap else cap - 1
-    while p > 0 and bd[p - 1] > d:
-        if p < cap:
-            bd[p] = bd[p - 1]
-            bi[p] = bi[p - 1]
-        p -= 1
-    bd[p] = d
-    bi[p] = j
-    return cnt + 1 if cnt < cap else cnt
-
-
-@kernel
 def _grid(pts: np.ndarray, x0: float, y0: float, x1: float, y1: float, cell: float):
     """Square cells of side ~``cell`` over the box ``[x0, x1] x [y0, y1]``: the cell side used, the grid size
     and the points of each cell (``members[counts[c]:counts[c + 1]]``)."""
@@ -375,7 +359,7 @@ def knn_grid(pts: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.nda
                             d = dx * dx + dy * dy
                             if cnt == cap and d >= bd[cap - 1]:
                                 continue
-                            cnt = _insert(bd, bi, cnt, cap, d, members[s])
+                            cnt = insert_sorted(bd, bi, cnt, cap, d, members[s])
                     xx += step
             if cx - r <= 0 and cy - r <= 0 and cx + r >= gx - 1 and cy + r >= gy - 1:
                 break  # the whole grid searched

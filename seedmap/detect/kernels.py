@@ -8,7 +8,8 @@
   tree's order could decide, for the caller to ask the tree there.
 
 The two gathers map every uint8 value through a 256-entry table computed by the numpy expression they replace, so
-the floats are the same bit for bit. Kernels compile on first use and are cached on disk (:func:`seedmap.compiled.kernel`).
+the floats are the same bit for bit. Kernels compile on first use and are cached on disk
+(:func:`seedmap.compiled.kernel`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import math
 
 import numpy as np
 
-from seedmap.compiled import cell_members, kernel
+from seedmap.compiled import cell_members, insert_sorted, kernel
 
 #: ``uint8 -> float32`` of the network input (``x.astype(np.float32) * (1.0 / 255.0)``)
 INPUT_LUT = np.arange(256).astype(np.uint8).astype(np.float32) * (1.0 / 255.0)
@@ -69,14 +70,13 @@ def gather_patches(img: np.ndarray, x: np.ndarray, y: np.ndarray, r: int, lut: n
                     k += 1
 
 
-
 #: relative band around the radius inside which a distance is left to the KD-tree (its rounding decides there)
 NEAR_REL = 1e-9
 
 
 @kernel
 def _cells(xy: np.ndarray, cell: float):
-    """Square cells of side >= ``cell`` over the points ``xy`` (N >= 1, 2): the side used, the grid width, each
+    """Square cells of side >= ``cell`` over the points ``xy`` (N >= 1, 2): the grid's width and height, each
     point's cell and the points of each cell (``members[counts[c]:counts[c + 1]]``)."""
     n = len(xy)
     x0, y0, x1, y1 = xy[0, 0], xy[0, 1], xy[0, 0], xy[0, 1]
@@ -145,14 +145,7 @@ def peak_context(xy: np.ndarray, rw: np.ndarray, k: int, radius: float, near: fl
                     if cnt == cap:
                         amb[p] = True
                         continue
-                    t = cnt  # insertion into the ascending list
-                    while t > 0 and bd[t - 1] > d2:
-                        bd[t] = bd[t - 1]
-                        bi[t] = bi[t - 1]
-                        t -= 1
-                    bd[t] = d2
-                    bi[t] = q
-                    cnt += 1
+                    cnt = insert_sorted(bd, bi, cnt, cap, d2, q)
         if cnt > k or zeros > 1:
             amb[p] = True
             continue
