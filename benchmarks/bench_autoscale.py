@@ -122,7 +122,7 @@ def scale_curve(spec: str) -> dict:
         for k, r in enumerate(CURVE_REL):
             det.scale = min(op / it["true"] * r, 4.0)
             t_rel[k] += f1(det.detect(it["image"]), it, 1.0)
-        det.scale = auto_scale(est, op)
+        det.scale = auto_scale(est, op, band=det.scale_cue == "boxes")
         t_est += f1(det.detect(it["image"]), it, 1.0)
     out = {"images": len(items), "rel": list(CURVE_REL), "f1_rel": [prf(*map(int, t))[2] for t in t_rel],
            "f1_auto": prf(*map(int, t_auto))[2], "f1_estimate": prf(*map(int, t_est))[2]}

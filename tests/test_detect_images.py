@@ -170,30 +170,73 @@ def test_seed_px_and_scale_together_or_too_small_seeds_are_config_errors():
     assert make_detector("fast", overrides=["cnn.seed_px=7", "cnn.domain=arm"]).scale == pytest.approx(1.0)
 
 
-def test_one_seed_size_per_folder_is_the_median_of_the_photos_estimates(tmp_path, monkeypatch, capsys):
-    """``cnn.scale=folder``: every photo runs at one seed size, the median of what each photo alone gives
-    (a fixed camera), near the true size; the default keeps each photo's own estimate."""
+def _rig(d, sizes, seed=0, empty=()):
+    """A folder of simulated training photos (480 x 480) with seeds of ``sizes`` px (one photo each); the photos at
+    the indices ``empty`` have none."""
     from seedmap.sim.photos.compose import render_photo
 
-    d = tmp_path / "rig"
     d.mkdir()
-    for k in range(5):
-        ph = render_photo(np.random.default_rng(k), "train", (480, 480), (18.0, 19.0), 0.0)
+    for k, px in enumerate(sizes):
+        ph = render_photo(np.random.default_rng(seed + k), "train", (480, 480), (px, px * 1.05),
+                          1.0 if k in empty else 0.0)
         cv2.imwrite(str(d / f"tray_{k}.png"), cv2.cvtColor(ph.image, cv2.COLOR_RGB2BGR))
+    return d
+
+
+def test_one_seed_size_per_folder_is_the_median_of_the_photos_estimates(tmp_path, monkeypatch, capsys):
+    """``cnn.scale=folder``: every photo runs at one seed size, the median of what each photo alone gives
+    (a fixed camera), near the true size; four photos are too few for the default to look for a folder's size."""
+    d = _rig(tmp_path / "rig", [18.0] * 4)
     own, folder = tmp_path / "own", tmp_path / "folder"
     assert run_cli(["detect", d, "--out", own], monkeypatch) == 0
     capsys.readouterr()
     assert run_cli(["detect", d, "--out", folder, "--set", "cnn.scale=folder"], monkeypatch) == 0
-    assert "seed size (estimated, all 5 images)" in capsys.readouterr().out
+    assert "seed size (estimated, all 4 images)" in capsys.readouterr().out
     ims = json.loads((own / "detections_coco.json").read_text())["images"]
+    assert {im["seed_px_from"] for im in ims} == {"photo"}
     est = [im["seed_px"] for im in ims]
     assert sum(e is not None for e in est) >= 3
     want = float(np.median([e for e in est if e is not None]))
-    # the size each photo's network ran for (its scale; none of these seeds lies in the band run at scale 1)
     run = float(np.median([PHOTO_SEED_PX / im["cnn_scale"] for im in ims if im["seed_px"] is not None]))
-    got = [im["seed_px"] for im in json.loads((folder / "detections_coco.json").read_text())["images"]]
-    assert got == [pytest.approx(want, abs=1e-3)] * 5
+    got = json.loads((folder / "detections_coco.json").read_text())["images"]
+    assert [im["seed_px"] for im in got] == [pytest.approx(want, abs=1e-3)] * 4
+    assert {im["seed_px_from"] for im in got} == {"folder"}
     assert abs(want / 18.5 - 1) < 0.2
     meta = json.loads((folder / "meta.json").read_text())
     assert meta["scale_source"] == "auto" and meta["seed_px_estimate"] == pytest.approx(want, abs=1e-3)
-    assert meta["cnn_scale"] == pytest.approx(auto_scale(run, PHOTO_SEED_PX), rel=1e-4)
+    assert meta["cnn_scale"] == pytest.approx(auto_scale(run, PHOTO_SEED_PX, band=False), rel=1e-4)
+
+
+def test_a_one_setup_folder_runs_every_photo_at_the_size_its_photos_agree_on(tmp_path, monkeypatch):
+    """The default on a folder of one setup (seeds of one size; two photos without seeds): the photos agree on a
+    size and all run at it, the seedless ones included; on a folder of two setups (seeds 3x apart) each photo keeps
+    its own size."""
+    one = _rig(tmp_path / "one", [18.0] * 7, empty=(2, 5))
+    assert run_cli(["detect", one, "--out", tmp_path / "r1"], monkeypatch) == 0
+    ims = json.loads((tmp_path / "r1" / "detections_coco.json").read_text())["images"]
+    scales = np.array([im["cnn_scale"] for im in ims])
+    assert scales.max() / scales.min() < 1.05 ** 2  # one size: every photo within the tolerance of the median
+    assert ims[2]["seed_px_from"] == ims[5]["seed_px_from"] == "folder"
+    assert all(abs(im["seed_px"] / 18.5 - 1) < 0.2 for im in ims)
+    two = _rig(tmp_path / "two", [12.0, 36.0] * 3, seed=10)
+    assert run_cli(["detect", two, "--out", tmp_path / "r2"], monkeypatch) == 0
+    ims = json.loads((tmp_path / "r2" / "detections_coco.json").read_text())["images"]
+    assert {im["seed_px_from"] for im in ims} == {"photo"}
+    small, large = [np.median([im["seed_px"] for im in ims[k::2]]) for k in (0, 1)]
+    assert 2.0 < large / small < 4.5
+
+
+def test_folder_agreement_needs_most_photos_within_the_band():
+    """One setup: the photos off the median run again (and those without an estimate); sizes split between two
+    ladder levels still agree on the seed size; mixed sizes or too few photos: None."""
+    from seedmap.detect.autoscale import folder_agreement
+
+    est = [(12.0, 11.0)] * 6 + [(12.5, 24.0), (None, None), (36.0, 33.0)]
+    seed, run, redo = folder_agreement(est)
+    assert seed == pytest.approx(12.0) and run == pytest.approx(11.0)
+    assert redo.tolist() == [False] * 6 + [True] * 3
+    split = [(12.0, 11.0), (12.5, 15.5), (12.2, 11.2), (12.4, 15.7), (11.9, 11.1), (12.1, 15.2)]
+    seed, run, redo = folder_agreement(split)
+    assert 11.9 <= seed <= 12.5 and 11.0 <= run <= 15.7 and redo.sum() >= 3
+    assert folder_agreement([(10.0 * 1.3 ** k, 10.0 * 1.3 ** k) for k in range(8)]) is None
+    assert folder_agreement([(12.0, 11.0)] * 4) is None

@@ -30,9 +30,9 @@ def detect_cmd(
 ) -> None:
     """Detect seeds (boxes, ellipses, keypoints) in every frame or image: JSON lines + COCO JSON (+ overlays).
 
-    The fast detector estimates the seeds' size (once per dataset, per image of a folder, or once per folder with
-    --set cnn.scale=folder) and resizes the images when it differs from the network's; to set it:
-    --set cnn.seed_px=N (px) or --set cnn.scale=F."""
+    The fast detector estimates the seeds' size (once per dataset; per image of a folder, then one size for the
+    folder when its images agree; once per folder with --set cnn.scale=folder) and resizes the images when it
+    differs from the network's; to set it: --set cnn.seed_px=N (px) or --set cnn.scale=F."""
     from seedmap.config import load_config
     from seedmap.detect import is_oracle_detector
     from seedmap.detect.run import DetectRunConfig, run_detect

@@ -56,6 +56,14 @@ BLUR_MAX = 0.25
 #: measure this multiple of the operating size where the confident peaks score highest (1.05 chosen on the
 #: validation photos: 92 % of the estimates within 15 %, against 88 % for 1.0 and 81 % for 1.1)
 SCORE_SIZE = 1.05
+#: ``cnn.scale = auto`` on a folder: the folder is one setup (camera, distance, seed lot) when at least AGREE_MIN
+#: photos have an estimate and AGREE_SHARE of them lie within AGREE_BAND x their median; every photo then runs at the
+#: agreeing photos' median size, and those whose own differed by more than REDO_TOLERANCE run again
+#: (:func:`folder_agreement`)
+AGREE_MIN = 5
+AGREE_SHARE = 0.6
+AGREE_BAND = 1.2
+REDO_TOLERANCE = 1.05
 #: the multiple of a ``score``-cue network whose file records none (networks fine-tuned from the photo network
 #: seedmap shipped up to 0.6.0, which read its seed size at 1.2x)
 UNRECORDED_SCORE_SIZE = 1.2
@@ -201,6 +209,32 @@ def estimate_seed_px(peaks_fn, image: np.ndarray, operating_px: float, cue: str 
         points = np.concatenate([points, xy])
     levels.sort(key=lambda v: -v.scale)
     return SeedSizeEstimate(size_from_scores(levels, operating_px, score_size), levels, run_px)
+
+
+def folder_agreement(estimates: list[tuple[float | None, float | None]]
+                     ) -> tuple[float, float, np.ndarray] | None:
+    """The sizes a folder of photos agrees on and the photos to run again at them. ``estimates`` are each photo's
+    ``(seed_px, run_px)`` (:class:`SeedSizeEstimate`; None: no seeds found). The folder is one setup when at least
+    AGREE_MIN photos have an estimate and AGREE_SHARE of them run within AGREE_BAND x the median run size, or else
+    estimate seeds within AGREE_BAND x the median seed size. Then ``(seed_px, run_px, redo)``: the medians over the
+    agreeing photos, and a mask of the photos whose own run size is more than REDO_TOLERANCE off the folder's or
+    that found no seeds; else None (photos of different setups keep their own sizes)."""
+    seed = np.array([np.nan if r is None or s is None else s for s, r in estimates], dtype=float)
+    run = np.array([np.nan if r is None or s is None else r for s, r in estimates], dtype=float)
+    ok = np.isfinite(seed)
+    if ok.sum() < AGREE_MIN:
+        return None
+    for v in (run, seed):  # the run sizes agree more often (the seed sizes where the run sizes split between levels)
+        agree = ok.copy()
+        agree[ok] = np.abs(np.log(v[ok] / np.median(v[ok]))) <= np.log(AGREE_BAND)
+        if agree.sum() >= AGREE_SHARE * ok.sum():
+            break
+    else:
+        return None
+    r_med = float(np.median(run[agree]))
+    redo = ~ok
+    redo[ok] = np.abs(np.log(run[ok] / r_med)) > np.log(REDO_TOLERANCE)
+    return float(np.median(seed[agree])), r_med, redo
 
 
 def _usable(levels: list[Level]) -> list[Level]:

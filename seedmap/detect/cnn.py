@@ -89,10 +89,11 @@ def cnn_weights_path(cfg: CnnConfig, weights: str | Path | None = None) -> Path:
     return shipped_or_path(weights or cfg.weights or default_cnn_path(cfg.domain))
 
 
-#: with ``cnn.scale = auto`` the network runs at scale 1 while the estimated seed size lies within these multiples
-#: of its operating seed size (the band it detects well, docs/method/detection.md) ...
+#: with ``cnn.scale = auto`` a ``boxes``-cue network runs at scale 1 while the estimated seed size lies within these
+#: multiples of its operating seed size (the band it detects well, docs/method/detection.md) ...
 SCALE_BAND = (0.75, 1.3)
-#: ... and at scale operating size / estimate (at most 4) outside it
+#: ... and at scale operating size / estimate (at most 4) outside it; a ``score``-cue network always runs at the size
+#: it scores highest for (its F1 falls off faster around its operating size)
 
 
 def fixed_scale(cfg: CnnConfig, operating_px: float, images_seed_px: float | None = None
@@ -120,10 +121,10 @@ def _bounded(s: float, what: str, px: float, operating_px: float) -> float:
     return s
 
 
-def auto_scale(seed_px: float | None, operating_px: float) -> float:
-    """The input scale for images of estimated seed size ``seed_px``: 1 inside SCALE_BAND (or without an estimate),
-    else ``operating_px / seed_px`` (at most 4)."""
-    if seed_px is None or SCALE_BAND[0] * operating_px <= seed_px <= SCALE_BAND[1] * operating_px:
+def auto_scale(seed_px: float | None, operating_px: float, band: bool = True) -> float:
+    """The input scale for images of estimated seed size ``seed_px``: 1 without an estimate or (``band``) inside
+    SCALE_BAND, else ``operating_px / seed_px`` (at most 4)."""
+    if seed_px is None or band and SCALE_BAND[0] * operating_px <= seed_px <= SCALE_BAND[1] * operating_px:
         return 1.0
     return min(float(operating_px) / float(seed_px), 4.0)
 
@@ -280,7 +281,7 @@ class CnnDetector(Detector):
         if self.scale_source == "auto":
             self.seed_px_estimate = seed_px
             self.run_px_estimate = seed_px if run_px is None else run_px
-            self.scale = auto_scale(self.run_px_estimate, self.trained_seed_px)
+            self.scale = auto_scale(self.run_px_estimate, self.trained_seed_px, band=self.scale_cue == "boxes")
 
     def ensure_scale(self, image: np.ndarray) -> float:
         """The input scale, estimated from RGB ``image`` first when it is not known yet (``auto``)."""

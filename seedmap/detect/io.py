@@ -12,11 +12,12 @@
 The keypoint of a detection is its ellipse centre ``(cx, cy)``.
 
 A photo's record (``fast`` detector) also carries ``seed_px`` (the seed size estimated in it, px, or the one
-``cnn.seed_px`` / ``cnn.scale`` / the network set; null when the estimate found no seeds) and ``cnn_scale`` (the
-factor the network's input was resized by).
+``cnn.seed_px`` / ``cnn.scale`` / the network set; null when the estimate found no seeds), ``cnn_scale`` (the
+factor the network's input was resized by) and ``seed_px_from`` (``photo``: its own estimate; ``folder``: the
+folder's; else how the config set it: ``seed_px`` | ``scale`` | ``network``).
 
-``DIR/detections_coco.json`` — the same detections as a COCO dataset (``images``, with a photo's ``seed_px`` and
-``cnn_scale``; ``annotations``
+``DIR/detections_coco.json`` — the same detections as a COCO dataset (``images``, with a photo's ``seed_px``,
+``cnn_scale`` and ``seed_px_from``; ``annotations``
 with ``bbox`` = [x, y, w, h], ``score``, ``keypoints`` = [cx, cy, 2] and ``ellipse`` in seedmap pixel-centre coordinates, a
 polygon ``segmentation`` of the ellipse in COCO pixel-edge coordinates (+0.5), ``categories`` = one ``seed`` class), so other tools can
 read them and they can serve as (pseudo-)labels for training.
@@ -122,7 +123,7 @@ def coco_from_records(records: Iterable[dict]) -> dict:
     for img_id, rec in enumerate(records, 1):
         images.append({"id": img_id, "file_name": rec["image"], "width": rec["width"], "height": rec["height"],
                        "frame": rec["frame"], "camera": rec["camera"],
-                       **{k: rec[k] for k in ("seed_px", "cnn_scale") if k in rec}})
+                       **{k: rec[k] for k in ("seed_px", "cnn_scale", "seed_px_from") if k in rec}})
         for b, s, e, sid in zip(rec["boxes"], rec["scores"], rec["ellipses"], rec["seed_ids"], strict=True):
             x0, y0, x1, y1 = b
             cx, cy, ma, mi, ang = e

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from seedmap import outputs
+from seedmap.detect.autoscale import folder_agreement
 from seedmap.detect.base import Detector, default_detector_name, is_oracle_detector, make_detector
 from seedmap.detect.config import DetectConfig
 from seedmap.detect.ellipse import draw_ellipses
@@ -106,30 +107,53 @@ def _detect_frames(det: Detector, seq, idx: list[int], overlay_dir: Path | None,
 def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir: Path | None,
                    progress: bool) -> tuple[list[dict], float]:
     """Detection records (camera ``mono``, the image's own name) of the images ``idx`` and the seconds spent
-    detecting. Overlays are ``overlay/NAME.png`` (NAME with its suffix replaced; kept when two names share a stem)."""
+    detecting. Overlays are ``overlay/NAME.png`` (NAME with its suffix replaced; kept when two names share a stem).
+    With ``cnn.scale = auto`` each photo's seed size is estimated in it; when the folder agrees on one
+    (:func:`seedmap.detect.autoscale.folder_agreement`) the photos that disagree run again at the folder's."""
     stems = [str(Path(n).with_suffix(".png")) for n in photos.names]
     over = stems if len(set(stems)) == len(stems) else [n if n.endswith(".png") else n + ".png" for n in photos.names]
-    records, t_det = [], 0.0
+    t_det = 0.0
     reset = getattr(det, "reset_scale", None)  # the fast detector: a fresh seed-size estimate per photo
-    if reset is not None and getattr(det, "scale_source", None) == "auto" and det.cfg.scale == "folder":
+    per_photo = reset is not None and getattr(det, "scale_source", None) == "auto"
+    source = "photo" if per_photo else getattr(det, "scale_source", None)  # each record's seed_px_from
+    if per_photo and det.cfg.scale == "folder":
         t0 = time.perf_counter()
         det.set_seed_px_estimate(*folder_seed_px(det, photos, idx, progress))
         t_det += time.perf_counter() - t0
-        reset = None  # one seed size for every photo
-    for i in track(idx, f"detect ({det.name})", "image", enabled=progress):
+        per_photo, source = False, "folder"  # one seed size for every photo
+
+    def one(k: int, label: str) -> tuple[dict, float]:
+        i = idx[k]
         img = photos.image(i)
         t0 = time.perf_counter()
-        if reset is not None:
-            reset()
         d = det.detect(img)
-        t_det += time.perf_counter() - t0
-        records.append(detection_record(i, "mono", d, 0.0, photos.names[i], img.shape[1], img.shape[0]))
-        if hasattr(det, "reset_scale"):
+        dt = time.perf_counter() - t0
+        rec = detection_record(i, "mono", d, 0.0, photos.names[i], img.shape[1], img.shape[0])
+        if reset is not None:
             s = det.settings()
             px = s["seed_px_estimate"] if s["scale_source"] == "auto" else s["seed_px"]
-            records[-1].update(seed_px=None if px is None else round(float(px), 3), cnn_scale=round(s["cnn_scale"], 6))
+            rec.update(seed_px=None if px is None else round(float(px), 3), cnn_scale=round(s["cnn_scale"], 6),
+                       seed_px_from=label)
         if overlay_dir is not None:
             write_png(overlay_dir / "overlay" / over[i], draw_ellipses(img, d.ellipses))
+        return rec, dt
+
+    records, estimates = [], []
+    for k in track(range(len(idx)), f"detect ({det.name})", "image", enabled=progress):
+        if per_photo:
+            reset()
+        rec, dt = one(k, source)
+        records.append(rec)
+        t_det += dt
+        if per_photo:
+            estimates.append((det.seed_px_estimate, det.run_px_estimate))
+    agreed = folder_agreement(estimates) if per_photo else None
+    if agreed is not None and agreed[2].any():
+        seed_px, run_px, redo = agreed
+        for k in track(np.flatnonzero(redo).tolist(), "detect (the folder's seed size)", "image", enabled=progress):
+            det.set_seed_px_estimate(seed_px, run_px)
+            records[k], dt = one(k, "folder")
+            t_det += dt
     return records, t_det
 
 
