@@ -4,4 +4,4 @@ Importing this package never imports torch: the learned detectors live behind th
 ``seedmap[learned]`` extra and are imported lazily.
 """
 
-__version__ = "0.8.2"  # the one place the version is written (pyproject.toml reads it)
+__version__ = "0.8.3"  # the one place the version is written (pyproject.toml reads it)

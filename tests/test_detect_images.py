@@ -207,12 +207,16 @@ def test_one_seed_size_per_folder_is_the_median_of_the_photos_estimates(tmp_path
     assert meta["cnn_scale"] == pytest.approx(auto_scale(run, PHOTO_SEED_PX, band=False), rel=1e-4)
 
 
-def test_a_one_setup_folder_runs_every_photo_at_the_size_its_photos_agree_on(tmp_path, monkeypatch):
+def test_a_one_setup_folder_runs_every_photo_at_the_size_its_photos_agree_on(tmp_path, monkeypatch, capsys):
     """The default on a folder of one setup (seeds of one size; two photos without seeds): the photos agree on a
     size and all run at it, the seedless ones included; on a folder of two setups (seeds 3x apart) each photo keeps
     its own size."""
     one = _rig(tmp_path / "one", [18.0] * 7, empty=(2, 5))
+    capsys.readouterr()
     assert run_cli(["detect", one, "--out", tmp_path / "r1"], monkeypatch) == 0
+    meta = json.loads((tmp_path / "r1" / "meta.json").read_text())
+    assert abs(meta["folder_seed_px"] / 18.5 - 1) < 0.2 and 2 <= meta["photos_rerun"] <= 7
+    assert "photos ran again at it" in capsys.readouterr().out
     ims = json.loads((tmp_path / "r1" / "detections_coco.json").read_text())["images"]
     scales = np.array([im["cnn_scale"] for im in ims])
     assert scales.max() / scales.min() < 1.05 ** 2  # one size: every photo within the tolerance of the median
@@ -222,6 +226,8 @@ def test_a_one_setup_folder_runs_every_photo_at_the_size_its_photos_agree_on(tmp
     assert run_cli(["detect", two, "--out", tmp_path / "r2"], monkeypatch) == 0
     ims = json.loads((tmp_path / "r2" / "detections_coco.json").read_text())["images"]
     assert {im["seed_px_from"] for im in ims} == {"photo"}
+    meta = json.loads((tmp_path / "r2" / "meta.json").read_text())
+    assert meta["folder_seed_px"] is None and meta["photos_rerun"] == 0
     small, large = [np.median([im["seed_px"] for im in ims[k::2]]) for k in (0, 1)]
     assert 2.0 < large / small < 4.5
 

@@ -83,7 +83,11 @@ def scale_summary(out: Path) -> str:
         px = sorted(im["seed_px"] for im in per if im["seed_px"] is not None)
         sc = sorted(im["cnn_scale"] for im in per)
         size = f"{px[0]:.3g}-{px[-1]:.3g} px" if px else "no seeds found"
-        return f"seed size ({how}, per image): {size}; network input scale {sc[0]:.3g}-{sc[-1]:.3g}"
+        agreed = ""
+        if meta.get("folder_seed_px") is not None:
+            agreed = (f"; the folder agreed on {meta['folder_seed_px']:.3g} px "
+                      f"({meta['photos_rerun']} of {len(per)} photos ran again at it)")
+        return f"seed size ({how}, per image): {size}; network input scale {sc[0]:.3g}-{sc[-1]:.3g}{agreed}"
     px = meta["seed_px_estimate"] if meta["scale_source"] == "auto" else meta["seed_px"]
     size = f"{px:.3g} px" if px is not None else "no seeds found"
     every = f", all {len(per)} images" if len(per) > 1 else ""

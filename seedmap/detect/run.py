@@ -70,7 +70,7 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
         raise InputError("dataset has no frames", dataset)
     with outputs.output_dir(Path(out), "detect", ins, overwrite) as tmp:
         run = _detect_photos if photos is not None else _detect_frames
-        records, t_det = run(det, seq, idx, tmp if overlay else None, progress)
+        records, t_det, folder = run(det, seq, idx, tmp if overlay else None, progress)
         write_detection_files(tmp, records)
         used = default_detector_name() if detector in ("default", "auto") else detector
         run_cfg = DetectRunConfig.model_validate({**cfg.model_dump(), "detector": used,
@@ -82,14 +82,15 @@ def run_detect(dataset: str | Path, out: str | Path, detector: str = "default", 
                 else None,
                 "images": len(records), "detections": int(sum(r["n"] for r in records)),
                 ("ms_per_image" if photos is not None else "ms_per_stereo_frame"): 1000.0 * t_det / len(idx),
-                **det.settings()}
+                **det.settings(), **folder}
         atomic_write_text(tmp / "meta.json", json.dumps(meta, indent=2))
     return Path(out)
 
 
 def _detect_frames(det: Detector, seq, idx: list[int], overlay_dir: Path | None,  # noqa: ANN001 - a StereoSequence
-                   progress: bool) -> tuple[list[dict], float]:
-    """Detection records of the stereo frames ``idx`` (left and right) and the seconds spent detecting."""
+                   progress: bool) -> tuple[list[dict], float, dict]:
+    """Detection records of the stereo frames ``idx`` (left and right), the seconds spent detecting and no
+    folder entries for meta.json."""
     records, t_det = [], 0.0
     for i in track(idx, f"detect ({det.name})", "frame", enabled=progress):
         frame = seq[i]
@@ -101,13 +102,14 @@ def _detect_frames(det: Detector, seq, idx: list[int], overlay_dir: Path | None,
                                             img.shape[1], img.shape[0]))
             if overlay_dir is not None:
                 write_png(overlay_dir / "overlay" / cam / f"{i:06d}.png", draw_ellipses(img, d.ellipses))
-    return records, t_det
+    return records, t_det, {}
 
 
 def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir: Path | None,
-                   progress: bool) -> tuple[list[dict], float]:
-    """Detection records (camera ``mono``, the image's own name) of the images ``idx`` and the seconds spent
-    detecting. Overlays are ``overlay/NAME.png`` (NAME with its suffix replaced; kept when two names share a stem).
+                   progress: bool) -> tuple[list[dict], float, dict]:
+    """Detection records (camera ``mono``, the image's own name) of the images ``idx``, the seconds spent
+    detecting and meta.json's folder entries (with ``cnn.scale = auto``: ``folder_seed_px`` / ``folder_run_px``, the
+    sizes the folder agreed on or None, and ``photos_rerun``). Overlays are ``overlay/NAME.png`` (NAME with its suffix replaced; kept when two names share a stem).
     With ``cnn.scale = auto`` each photo's seed size is estimated in it; when the folder agrees on one
     (:func:`seedmap.detect.autoscale.folder_agreement`) the photos that disagree run again at the folder's."""
     stems = [str(Path(n).with_suffix(".png")) for n in photos.names]
@@ -147,14 +149,18 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
         t_det += dt
         if per_photo:
             estimates.append((det.seed_px_estimate, det.run_px_estimate))
-    agreed = folder_agreement(estimates) if per_photo else None
-    if agreed is not None and agreed[2].any():
-        seed_px, run_px, redo = agreed
-        for k in track(np.flatnonzero(redo).tolist(), "detect (the folder's seed size)", "image", enabled=progress):
-            det.set_seed_px_estimate(seed_px, run_px)
-            records[k], dt = one(k, "folder")
-            t_det += dt
-    return records, t_det
+    if not per_photo:
+        return records, t_det, {}
+    agreed = folder_agreement(estimates)
+    if agreed is None:
+        return records, t_det, {"folder_seed_px": None, "folder_run_px": None, "photos_rerun": 0}
+    seed_px, run_px, redo = agreed
+    for k in track(np.flatnonzero(redo).tolist(), "detect (the folder's seed size)", "image", enabled=progress):
+        det.set_seed_px_estimate(seed_px, run_px)
+        records[k], dt = one(k, "folder")
+        t_det += dt
+    return records, t_det, {"folder_seed_px": round(seed_px, 3), "folder_run_px": round(run_px, 3),
+                            "photos_rerun": int(redo.sum())}
 
 
 def folder_seed_px(det: Detector, photos: PhotoSet, idx: list[int], progress: bool = False
