@@ -65,10 +65,10 @@ class CnnConfig(ConfigModel):
     threshold: float = CNN_THRESHOLD
     #: tile side (px, even) the gated network runs on; 0 = the whole image in one pass
     tile: int = 48
-    #: ``auto`` = estimate the seeds' size on the first image of a sequence (each photo of a folder, then one size for
-    #: the folder when its photos agree: autoscale.folder_agreement) and resize the images to it; ``folder`` = as ``auto``, but one size for a whole folder of photos (a
-    #: fixed camera or scanner): the median estimate of up to FOLDER_SAMPLE photos spread over it; a number = run
-    #: the network on the image resized by it (0-4]
+    #: ``auto`` = estimate the seeds' size on the first image of a sequence (each photo of a folder, then one size
+    #: for the folder when its photos agree: autoscale.folder_agreement) and resize the images to it; ``folder`` =
+    #: one size for a whole folder of photos without that check (a fixed camera or scanner): the median estimate of
+    #: up to FOLDER_SAMPLE photos spread over it; a number = run the network on the image resized by it (0-4]
     scale: Union[Literal["auto", "folder"], float] = "auto"
     #: the seeds' typical diameter (px, geometric mean of a seed's box sides) in your images: sets the scale to the
     #: network's training seed size / seed_px (TRAINED_SEED_PX, or the size a ``seedmap train fast-cnn`` network

@@ -109,9 +109,10 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
                    progress: bool) -> tuple[list[dict], float, dict]:
     """Detection records (camera ``mono``, the image's own name) of the images ``idx``, the seconds spent
     detecting and meta.json's folder entries (with ``cnn.scale = auto``: ``folder_seed_px`` / ``folder_run_px``, the
-    sizes the folder agreed on or None, and ``photos_rerun``). Overlays are ``overlay/NAME.png`` (NAME with its suffix replaced; kept when two names share a stem).
-    With ``cnn.scale = auto`` each photo's seed size is estimated in it; when the folder agrees on one
-    (:func:`seedmap.detect.autoscale.folder_agreement`) the photos that disagree run again at the folder's."""
+    sizes the folder agreed on or None, and ``photos_rerun``). Overlays are ``overlay/NAME.png`` (NAME with its
+    suffix replaced; kept when two names share a stem). With ``cnn.scale = auto`` each photo's seed size is estimated
+    in it; when the folder agrees on one (:func:`seedmap.detect.autoscale.folder_agreement`) the photos that ran at
+    another size (or found no seeds) run again at the folder's."""
     stems = [str(Path(n).with_suffix(".png")) for n in photos.names]
     over = stems if len(set(stems)) == len(stems) else [n if n.endswith(".png") else n + ".png" for n in photos.names]
     t_det = 0.0
