@@ -156,8 +156,8 @@ def _detect_photos(det: Detector, photos: PhotoSet, idx: list[int], overlay_dir:
     if agreed is None:
         return records, t_det, {"folder_seed_px": None, "folder_run_px": None, "photos_rerun": 0}
     seed_px, run_px, redo = agreed
+    det.set_seed_px_estimate(seed_px, run_px)  # kept for every photo below: detect() estimates only without a scale
     for k in track(np.flatnonzero(redo).tolist(), "detect (the folder's seed size)", "image", enabled=progress):
-        det.set_seed_px_estimate(seed_px, run_px)
         records[k], dt = one(k, "folder")
         t_det += dt
     return records, t_det, {"folder_seed_px": round(seed_px, 3), "folder_run_px": round(run_px, 3),
