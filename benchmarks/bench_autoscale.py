@@ -108,8 +108,6 @@ def scale_curve(spec: str) -> dict:
     a ``seed_px``: run at CURVE_REL x the scale that brings its true seed size to the network's (``rel``), at the
     scale ``cnn.scale = auto`` picks (``auto``: the best ladder level of the score cue) and at the scale of the
     seed-size estimate itself (``estimate``)."""
-    from seedmap.detect.cnn import auto_scale
-
     path, _, opts = dataset_spec(spec, "photo")
     det = make_detector("fast", overrides=opts)
     op = det.trained_seed_px
@@ -122,7 +120,7 @@ def scale_curve(spec: str) -> dict:
         for k, r in enumerate(CURVE_REL):
             det.scale = min(op / it["true"] * r, 4.0)
             t_rel[k] += f1(det.detect(it["image"]), it, 1.0)
-        det.scale = auto_scale(est, op, band=det.scale_cue == "boxes")
+        det.scale = det.scale_for(est)
         t_est += f1(det.detect(it["image"]), it, 1.0)
     out = {"images": len(items), "rel": list(CURVE_REL), "f1_rel": [prf(*map(int, t))[2] for t in t_rel],
            "f1_auto": prf(*map(int, t_auto))[2], "f1_estimate": prf(*map(int, t_est))[2]}

@@ -281,7 +281,12 @@ class CnnDetector(Detector):
         if self.scale_source == "auto":
             self.seed_px_estimate = seed_px
             self.run_px_estimate = seed_px if run_px is None else run_px
-            self.scale = auto_scale(self.run_px_estimate, self.trained_seed_px, band=self.scale_cue == "boxes")
+            self.scale = self.scale_for(self.run_px_estimate)
+
+    def scale_for(self, seed_px: float | None) -> float:
+        """The input scale ``cnn.scale = auto`` runs images of seed size ``seed_px`` (px; None = unknown) at: a
+        ``boxes``-cue network keeps scale 1 inside its band, a ``score``-cue one runs at the size it scores best."""
+        return auto_scale(seed_px, self.trained_seed_px, band=self.scale_cue == "boxes")
 
     def ensure_scale(self, image: np.ndarray) -> float:
         """The input scale, estimated from RGB ``image`` first when it is not known yet (``auto``)."""
