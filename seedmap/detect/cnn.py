@@ -284,8 +284,9 @@ class CnnDetector(Detector):
             self.scale = self.scale_for(self.run_px_estimate)
 
     def scale_for(self, seed_px: float | None) -> float:
-        """The input scale ``cnn.scale = auto`` runs images of seed size ``seed_px`` (px; None = unknown) at: a
-        ``boxes``-cue network keeps scale 1 inside its band, a ``score``-cue one runs at the size it scores best."""
+        """The input scale ``cnn.scale = auto`` runs images of seed size ``seed_px`` (px; None = unknown: 1) at,
+        :func:`auto_scale`: a ``boxes``-cue network keeps scale 1 inside SCALE_BAND, a ``score``-cue one always brings
+        ``seed_px`` to its own size."""
         return auto_scale(seed_px, self.trained_seed_px, band=self.scale_cue == "boxes")
 
     def ensure_scale(self, image: np.ndarray) -> float:
